@@ -1,0 +1,149 @@
+"""How good a grouping is, measured against true labels.
+
+`groups[i]` is the group of detection i (-1 = unassigned); `labels[i]` its true target, ``None``
+when unknown and ``"clutter"`` for a false alarm. Only labelled detections are scored.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from sklearn.metrics import adjusted_rand_score
+
+from service.association.detections import CLUTTER, IntArray, ObjectArray
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """Scores of a grouping; see `score_grouping` for their definitions."""
+
+    accuracy: float
+    pairwise_precision: float
+    pairwise_recall: float
+    pairwise_f1: float
+    ari: float
+    complete_targets: float
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def score_grouping(groups: IntArray, labels: ObjectArray) -> Metrics | None:
+    """Score `groups` against `labels` over the labelled detections; None when none is labelled.
+
+    - accuracy (the paper's figure): groups are matched one-to-one to true targets so as to
+      maximise agreeing detections (Hungarian method on the contingency table); the share of
+      detections whose group is matched to their own target. Clutter is right when unassigned.
+    - pairwise precision / recall / F1 over pairs of detections put in one group vs truly of one
+      target.
+    - ari: adjusted Rand index, with each unassigned detection and each clutter detection a
+      singleton.
+    - complete_targets: share of true targets whose detections form exactly one group, no more
+      and no less (the row of the target x sensor matrix is exactly right).
+    """
+    labelled = np.array([t is not None for t in labels], dtype=bool)
+    if not labelled.any():
+        return None
+    pred = np.asarray(groups, dtype=np.int64)[labelled]
+    truth_text = labels[labelled].astype(str)
+    is_clutter = truth_text == CLUTTER
+    truth = np.unique(truth_text, return_inverse=True)[1]
+    truth = np.where(is_clutter, -1, truth)
+
+    accuracy = _matched_accuracy(pred, truth)
+    precision, recall = _pairwise_precision_recall(pred, truth)
+    f1 = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
+    return Metrics(
+        accuracy=accuracy,
+        pairwise_precision=precision,
+        pairwise_recall=recall,
+        pairwise_f1=f1,
+        ari=float(adjusted_rand_score(_singletons(truth), _singletons(pred))),
+        complete_targets=_complete_share(pred, truth),
+    )
+
+
+def _matched_accuracy(pred: IntArray, truth: IntArray) -> float:
+    right = int(np.sum((pred == -1) & (truth == -1)))
+    both = (pred >= 0) & (truth >= 0)
+    if both.any():
+        right += _max_matching_weight(*_pair_counts(pred[both], truth[both]))
+    return right / pred.size
+
+
+def _pair_counts(pred: IntArray, truth: IntArray) -> tuple[IntArray, IntArray, IntArray]:
+    """The non-zero cells of the group x target contingency table: (group, target, count)."""
+    pairs, counts = np.unique(np.column_stack([pred, truth]), axis=0, return_counts=True)
+    return pairs[:, 0], pairs[:, 1], counts
+
+
+def _max_matching_weight(groups: IntArray, targets: IntArray, counts: IntArray) -> int:
+    """Weight of the best one-to-one matching of groups to targets (Hungarian method).
+
+    The contingency table is sparse (a group mostly holds one target), so it is split into the
+    connected components of its group-target graph and each small block is solved densely; a
+    dense table of 20,000 x 20,000 would not fit in memory.
+    """
+    _, g = np.unique(groups, return_inverse=True)
+    _, t = np.unique(targets, return_inverse=True)
+    n_g, n_t = int(g.max()) + 1, int(t.max()) + 1
+    graph = coo_matrix((np.ones_like(counts), (g, n_g + t)), shape=(n_g + n_t, n_g + n_t))
+    _, component = connected_components(graph, directed=False)
+    edge_component = component[g]
+    total = 0
+    order = np.argsort(edge_component, kind="stable")
+    bounds = np.flatnonzero(np.diff(edge_component[order])) + 1
+    for block in np.split(order, bounds):
+        if block.size == 1:
+            total += int(counts[block[0]])
+            continue
+        _, bg = np.unique(g[block], return_inverse=True)
+        _, bt = np.unique(t[block], return_inverse=True)
+        table = np.zeros((bg.max() + 1, bt.max() + 1), dtype=np.int64)
+        table[bg, bt] = counts[block]
+        rows, cols = linear_sum_assignment(table, maximize=True)
+        total += int(table[rows, cols].sum())
+    return total
+
+
+def _pairs_within(ids: IntArray) -> int:
+    """Number of unordered pairs of detections sharing an id (ids < 0 share with nobody)."""
+    counts = np.unique(ids[ids >= 0], return_counts=True)[1]
+    return int(np.sum(counts * (counts - 1) // 2))
+
+
+def _pairwise_precision_recall(pred: IntArray, truth: IntArray) -> tuple[float, float]:
+    both = (pred >= 0) & (truth >= 0)
+    agreeing = 0
+    if both.any():
+        counts = _pair_counts(pred[both], truth[both])[2]
+        agreeing = int(np.sum(counts * (counts - 1) // 2))
+    predicted, true = _pairs_within(pred), _pairs_within(truth)
+    precision = agreeing / predicted if predicted else 1.0
+    recall = agreeing / true if true else 1.0
+    return precision, recall
+
+
+def _singletons(ids: IntArray) -> IntArray:
+    """Give every negative id (unassigned, clutter) a label of its own."""
+    out = ids.copy()
+    lone = out < 0
+    out[lone] = out.max(initial=0) + 1 + np.arange(int(lone.sum()))
+    return out
+
+
+def _complete_share(pred: IntArray, truth: IntArray) -> float:
+    """Share of true targets whose detections are exactly one group's labelled detections."""
+    real = truth >= 0
+    if not real.any():
+        return 1.0
+    target_ids, target_size = np.unique(truth[real], return_counts=True)
+    group_size = np.bincount(pred[pred >= 0]) if (pred >= 0).any() else np.zeros(0, np.int64)
+    groups, targets, counts = _pair_counts(pred[real], truth[real])
+    whole = (groups >= 0) & (counts == target_size[np.searchsorted(target_ids, targets)])
+    whole[whole] &= group_size[groups[whole]] == counts[whole]
+    return int(whole.sum()) / target_ids.size

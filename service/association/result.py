@@ -1,0 +1,135 @@
+"""The association result of design.md: targets with their detections, unassigned, metrics."""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from service.association.backprojection import backproject_times
+from service.association.detections import Detections, IntArray
+from service.association.metrics import Metrics, score_grouping
+
+
+@dataclass(frozen=True, eq=False)
+class AssociationResult:
+    """Detections grouped into targets.
+
+    `groups[i]` is the target index of detection i in `targets_order` terms: targets are numbered
+    0..n_targets-1 in the order they pass the reference sensor; -1 is unassigned.
+    """
+
+    associator: str
+    params: dict[str, Any]
+    detections: Detections
+    groups: IntArray
+    metrics: Metrics | None
+
+    @property
+    def n_targets(self) -> int:
+        return int(self.groups.max(initial=-1)) + 1
+
+    def target_members(self) -> list[IntArray]:
+        """Detection indices of each target, ordered by position (then time)."""
+        order = np.lexsort((self.detections.timestamp, self.detections.position, self.groups))
+        sorted_groups = self.groups[order]
+        assigned = order[sorted_groups >= 0]
+        bounds = np.flatnonzero(np.diff(self.groups[assigned])) + 1
+        return np.split(assigned, bounds) if assigned.size else []
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON contract of design.md."""
+        d = self.detections
+        return {
+            "associator": self.associator,
+            "params": self.params,
+            "n_detections": len(d),
+            "n_targets": self.n_targets,
+            "targets": [
+                {"target": f"T{k + 1}", "detections": [_detection(d, int(i)) for i in members]}
+                for k, members in enumerate(self.target_members())
+            ],
+            "unassigned": [_detection(d, int(i)) for i in np.flatnonzero(self.groups < 0)],
+            "metrics": None if self.metrics is None else self.metrics.to_dict(),
+        }
+
+    def to_matrix_csv(self) -> str:
+        """The paper's X'': one row per target, per sensor its detection id, velocity and time.
+
+        A cell holding several detections (possible with K-means) lists them separated by ';'.
+        """
+        d = self.detections
+        sensors = _sensors_in_road_order(d)
+        column = {sid: k for k, sid in enumerate(sensors)}
+        out = io.StringIO()
+        writer = csv.writer(out, lineterminator="\n")
+        writer.writerow(
+            ["target"]
+            + [
+                f"{sid}_{field}"
+                for sid in sensors
+                for field in ("detection_id", "velocity", "timestamp")
+            ]
+        )
+        for k, members in enumerate(self.target_members()):
+            cells: list[list[list[str]]] = [[[], [], []] for _ in sensors]
+            for i in members:
+                cell = cells[column[d.sensor_id[i]]]
+                cell[0].append(str(d.detection_id[i]))
+                cell[1].append(repr(float(d.velocity[i])))
+                cell[2].append(repr(float(d.timestamp[i])))
+            writer.writerow([f"T{k + 1}"] + [";".join(v) for cell in cells for v in cell])
+        return out.getvalue()
+
+
+def build_result(
+    detections: Detections, groups: IntArray, associator: str, params: dict[str, Any]
+) -> AssociationResult:
+    """Renumber groups by the time each target passes the reference sensor, and score them.
+
+    A target's passing time is the back-projected time of its detection nearest the reference
+    sensor (its own passing time, when it was seen there).
+    """
+    groups = np.asarray(groups, dtype=np.int64)
+    if groups.shape != (len(detections),):
+        raise ValueError(f"{len(detections)} detections but {groups.size} group indices")
+    renumbered = np.full(groups.size, -1, dtype=np.int64)
+    assigned = np.flatnonzero(groups >= 0)
+    if assigned.size:
+        times = backproject_times(
+            detections.position,
+            detections.velocity,
+            detections.timestamp,
+            detections.reference_position,
+        )
+        # Per group, its detection with the smallest position (first along the road).
+        order = assigned[np.lexsort((detections.position[assigned], groups[assigned]))]
+        labels, first = np.unique(groups[order], return_index=True)
+        rank = np.empty(labels.size, dtype=np.int64)
+        rank[np.argsort(times[order[first]], kind="stable")] = np.arange(labels.size)
+        renumbered[assigned] = rank[np.searchsorted(labels, groups[assigned])]
+    return AssociationResult(
+        associator=associator,
+        params=params,
+        detections=detections,
+        groups=renumbered,
+        metrics=score_grouping(renumbered, detections.target),
+    )
+
+
+def _sensors_in_road_order(d: Detections) -> list[str]:
+    order = np.lexsort((d.sensor_id.astype(str), d.position))
+    return list(dict.fromkeys(d.sensor_id[order].tolist()))
+
+
+def _detection(d: Detections, i: int) -> dict[str, Any]:
+    return {
+        "detection_id": d.detection_id[i],
+        "sensor_id": d.sensor_id[i],
+        "position": float(d.position[i]),
+        "velocity": float(d.velocity[i]),
+        "timestamp": float(d.timestamp[i]),
+    }
