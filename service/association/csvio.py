@@ -19,7 +19,7 @@ def read_detections_csv(text: str) -> Detections:
 
     Rows are numbered from 1 at the first data row (line 2 of the file).
     """
-    reader = csv.reader(io.StringIO(text.lstrip("\ufeff")))
+    reader = csv.reader(io.StringIO(text.lstrip("\ufeff")), strict=True)
     header = next(reader, None)
     if header is None or not any(h.strip() for h in header):
         raise DetectionError([Problem(None, None, "the CSV is empty: a header row is required")])

@@ -191,7 +191,7 @@ def _float_column(name: str, values: object, problems: list[Problem]) -> FloatAr
                 out[i] = number[0]
     for row in np.flatnonzero(~np.isfinite(out) & ~not_number):
         problems.append(Problem(int(row) + 1, name, f"must be finite, got {float(out[row])}"))
-    for row in np.flatnonzero(np.abs(out) > MAX_ABS_VALUE):
+    for row in np.flatnonzero(np.isfinite(out) & (np.abs(out) > MAX_ABS_VALUE)):
         problems.append(
             Problem(
                 int(row) + 1,
@@ -203,17 +203,23 @@ def _float_column(name: str, values: object, problems: list[Problem]) -> FloatAr
 
 
 def _as_floats(values: object) -> FloatArray | None:
-    """The values as float64, or None when any is not a number (bools and None are not)."""
-    array = np.asarray(values)
-    if array.dtype.kind in "iuf":
-        return array.astype(np.float64, copy=False).reshape(-1)
-    if array.dtype.kind != "O" and array.dtype.kind != "U":
+    """The values as a flat float64 array, or None when any is not a number.
+
+    Booleans and None are not numbers, even though numpy would happily convert them.
+    """
+    if not isinstance(values, np.ndarray):
+        items: list[object] = list(values)  # type: ignore[call-overload]
+        if any(v is None or isinstance(v, bool | np.bool_) for v in items):
+            return None
+        values = items
+    try:
+        array = np.asarray(values)
+    except ValueError:  # ragged: some entry is a sequence
         return None
-    flat = array.reshape(-1)
-    if any(v is None or isinstance(v, bool) for v in flat):
+    if array.ndim != 1 or array.dtype.kind not in "iufOU":
         return None
     try:
-        return flat.astype(np.float64)
+        return array.astype(np.float64)
     except (TypeError, ValueError):
         return None
 

@@ -9,9 +9,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 from sklearn.metrics import adjusted_rand_score
 
 from service.association.detections import CLUTTER, IntArray, ObjectArray
@@ -82,32 +81,24 @@ def _pair_counts(pred: IntArray, truth: IntArray) -> tuple[IntArray, IntArray, I
 
 
 def _max_matching_weight(groups: IntArray, targets: IntArray, counts: IntArray) -> int:
-    """Weight of the best one-to-one matching of groups to targets (Hungarian method).
+    """Weight of the best one-to-one matching of groups to targets (an assignment problem).
 
-    The contingency table is sparse (a group mostly holds one target), so it is split into the
-    connected components of its group-target graph and each small block is solved densely; a
-    dense table of 20,000 x 20,000 would not fit in memory.
+    The contingency table is sparse (a group mostly holds one target) and can be 20,000 x
+    20,000, so it is solved as a sparse assignment (LAPJVsp). Every group also gets a private
+    "no target" column so that a full matching of the groups always exists; costs are
+    `top - count`, so minimising cost maximises the matched count.
     """
     _, g = np.unique(groups, return_inverse=True)
     _, t = np.unique(targets, return_inverse=True)
     n_g, n_t = int(g.max()) + 1, int(t.max()) + 1
-    graph = coo_matrix((np.ones_like(counts), (g, n_g + t)), shape=(n_g + n_t, n_g + n_t))
-    _, component = connected_components(graph, directed=False)
-    edge_component = component[g]
-    total = 0
-    order = np.argsort(edge_component, kind="stable")
-    bounds = np.flatnonzero(np.diff(edge_component[order])) + 1
-    for block in np.split(order, bounds):
-        if block.size == 1:
-            total += int(counts[block[0]])
-            continue
-        _, bg = np.unique(g[block], return_inverse=True)
-        _, bt = np.unique(t[block], return_inverse=True)
-        table = np.zeros((bg.max() + 1, bt.max() + 1), dtype=np.int64)
-        table[bg, bt] = counts[block]
-        rows, cols = linear_sum_assignment(table, maximize=True)
-        total += int(table[rows, cols].sum())
-    return total
+    top = int(counts.max()) + 1
+    rows = np.concatenate([g, np.arange(n_g)])
+    cols = np.concatenate([t, n_t + np.arange(n_g)])
+    cost = np.concatenate([top - counts, np.full(n_g, top)]).astype(np.float64)
+    graph = csr_matrix((cost, (rows, cols)), shape=(n_g, n_t + n_g))
+    matched_rows, matched_cols = min_weight_full_bipartite_matching(graph)
+    real = matched_cols < n_t
+    return int(np.sum(top - graph[matched_rows[real], matched_cols[real]]))
 
 
 def _pairs_within(ids: IntArray) -> int:

@@ -8,11 +8,13 @@ scikit-learn's.
 
 from __future__ import annotations
 
+import warnings
 from typing import ClassVar
 
 import numpy as np
 from pydantic import Field
 from sklearn.cluster import KMeans
+from sklearn.exceptions import ConvergenceWarning
 
 from service.association.associators.base import Associator, AssociatorParams, Progress
 from service.association.backprojection import backprojected_features
@@ -90,7 +92,11 @@ class KMeansAssociator(Associator):
                 n_init=1,
                 max_iter=p.max_iter,
                 algorithm="lloyd",
-            ).fit(points)
+            )
+            with warnings.catch_warnings():
+                # Coinciding points (e.g. constant speeds) leave a cluster empty: expected here.
+                warnings.simplefilter("ignore", ConvergenceWarning)
+                model.fit(points)
             if best is None or model.inertia_ < best.inertia_:
                 best = model
             if progress:

@@ -1,0 +1,104 @@
+import math
+
+import numpy as np
+import pytest
+
+from service.association.detections import DetectionError, Detections, concatenate
+
+
+def make(**overrides):
+    columns = {
+        "position": [0.0, 100.0, 0.0, 100.0],
+        "velocity": [20.0, 21.0, 30.0, 29.0],
+        "timestamp": [1.0, 6.0, 2.0, 5.5],
+    }
+    columns.update(overrides)
+    return Detections.from_columns(**columns)
+
+
+def problems_of(excinfo):
+    return [(p.row, p.field) for p in excinfo.value.problems]
+
+
+def test_generates_sensor_ids_by_road_order_and_detection_ids():
+    d = make(position=[100.0, 0.0, 100.0, 0.0])
+    assert d.sensor_id.tolist() == ["S2", "S1", "S2", "S1"]
+    assert d.detection_id.tolist() == ["d1", "d2", "d3", "d4"]
+    assert d.reference_position == 0.0
+    assert d.target.tolist() == [None] * 4
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, "nan", "inf"])
+def test_non_finite_numbers_name_row_and_field(bad):
+    with pytest.raises(DetectionError) as excinfo:
+        make(timestamp=[1.0, bad, 2.0, 3.0])
+    assert problems_of(excinfo) == [(2, "timestamp")]
+    assert "row 2" in str(excinfo.value) and "timestamp" in str(excinfo.value)
+
+
+@pytest.mark.parametrize("bad", [0.0, -3.0])
+def test_velocity_must_be_positive(bad):
+    with pytest.raises(DetectionError) as excinfo:
+        make(velocity=[20.0, 21.0, bad, 29.0])
+    assert problems_of(excinfo) == [(3, "velocity")]
+    assert "> 0" in str(excinfo.value)
+
+
+@pytest.mark.parametrize("bad", [None, "fast", True, [1.0]])
+def test_non_numbers_are_reported(bad):
+    with pytest.raises(DetectionError) as excinfo:
+        make(position=[0.0, 100.0, bad, 100.0])
+    assert problems_of(excinfo) == [(3, "position")]
+
+
+def test_huge_magnitudes_are_rejected():
+    with pytest.raises(DetectionError) as excinfo:
+        make(timestamp=[1.0, 2.0, 3e300, 4.0])
+    assert problems_of(excinfo) == [(3, "timestamp")]
+
+
+def test_all_problems_are_reported_at_once():
+    with pytest.raises(DetectionError) as excinfo:
+        make(velocity=[-1.0, 21.0, math.nan, 29.0], timestamp=[1.0, "x", 2.0, 3.0])
+    assert set(problems_of(excinfo)) == {(1, "velocity"), (3, "velocity"), (2, "timestamp")}
+
+
+def test_needs_two_distinct_sensor_positions():
+    with pytest.raises(DetectionError, match="two distinct sensor positions"):
+        make(position=[5.0, 5.0, 5.0, 5.0])
+
+
+def test_one_sensor_id_cannot_have_two_positions():
+    with pytest.raises(DetectionError) as excinfo:
+        make(sensor_id=["A", "B", "A", "A"])
+    assert problems_of(excinfo) == [(4, "sensor_id")]
+    assert "'A' is at position 0" in str(excinfo.value)
+
+
+def test_repeated_detection_ids_are_rejected():
+    with pytest.raises(DetectionError) as excinfo:
+        make(detection_id=["x", "y", "x", "z"])
+    assert problems_of(excinfo) == [(3, "detection_id")]
+
+
+def test_columns_of_different_length_are_rejected():
+    with pytest.raises(DetectionError, match="differ in length"):
+        make(velocity=[1.0, 2.0])
+
+
+def test_blank_labels_mean_unlabelled_and_clutter_is_kept():
+    d = make(target=["A", "", None, "clutter"])
+    assert d.target.tolist() == ["A", None, None, "clutter"]
+    assert d.labelled.tolist() == [True, False, False, True]
+    assert d.without_labels().labelled.tolist() == [False] * 4
+
+
+def test_take_and_concatenate_keep_rows_together():
+    d = make(detection_id=["a", "b", "c", "e"])
+    part = d.take([3, 0])
+    assert part.detection_id.tolist() == ["e", "a"]
+    np.testing.assert_array_equal(part.velocity, [29.0, 20.0])
+    joined = concatenate([part, d.take([1])])
+    assert joined.detection_id.tolist() == ["e", "a", "b"]
+    with pytest.raises(DetectionError):
+        concatenate([])

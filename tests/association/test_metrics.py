@@ -1,0 +1,96 @@
+import numpy as np
+import pytest
+from sklearn.metrics import adjusted_rand_score
+
+from service.association.metrics import score_grouping
+
+
+def labels(*values):
+    return np.array(values, dtype=object)
+
+
+def groups(*values):
+    return np.array(values, dtype=np.int64)
+
+
+def test_perfect_grouping_under_any_group_numbering():
+    m = score_grouping(groups(7, 7, 3, 3, 5), labels("A", "A", "B", "B", "C"))
+    assert m is not None
+    assert m.accuracy == 1.0
+    assert m.pairwise_precision == m.pairwise_recall == m.pairwise_f1 == 1.0
+    assert m.ari == pytest.approx(1.0)
+    assert m.complete_targets == 1.0
+
+
+def test_accuracy_uses_the_best_one_to_one_matching_not_majority():
+    # Group 0 holds 3 of A and 2 of B; group 1 holds 2 of B. Majority voting would give both
+    # groups to... A and B; the one-to-one optimum is 0->A (3) and 1->B (2): 5 of 7 right.
+    m = score_grouping(groups(0, 0, 0, 0, 0, 1, 1), labels("A", "A", "A", "B", "B", "B", "B"))
+    assert m.accuracy == pytest.approx(5 / 7)
+
+
+def test_two_groups_cannot_both_claim_one_target():
+    # Everything is target A, split across two groups: only the larger group can match A.
+    m = score_grouping(groups(0, 0, 0, 1, 1), labels("A", "A", "A", "A", "A"))
+    assert m.accuracy == pytest.approx(3 / 5)
+    assert m.complete_targets == 0.0
+    assert m.pairwise_precision == 1.0
+    assert m.pairwise_recall == pytest.approx(4 / 10)  # 3 + 1 agreeing pairs of 10
+
+
+def test_clutter_is_right_only_when_unassigned():
+    truth = labels("A", "A", "clutter", "clutter")
+    assert score_grouping(groups(0, 0, -1, -1), truth).accuracy == 1.0
+    m = score_grouping(groups(0, 0, 0, -1), truth)
+    assert m.accuracy == pytest.approx(3 / 4)
+    assert m.pairwise_precision == pytest.approx(1 / 3)  # pairs in group 0: 3, agreeing: 1
+    assert m.complete_targets == 0.0  # A's row holds a false alarm
+
+
+def test_unassigned_real_detection_is_wrong():
+    m = score_grouping(groups(0, -1, 1, 1), labels("A", "A", "B", "B"))
+    assert m.accuracy == pytest.approx(3 / 4)
+    assert m.complete_targets == pytest.approx(1 / 2)
+
+
+def test_only_labelled_detections_count():
+    m = score_grouping(groups(0, 0, 1, 1), labels("A", None, "B", None))
+    assert m.accuracy == 1.0
+    assert score_grouping(groups(0, 1), labels(None, None)) is None
+
+
+def test_ari_matches_scikit_learn_with_singletons():
+    rng = np.random.default_rng(3)
+    truth = rng.integers(0, 6, size=60)
+    pred = np.where(rng.random(60) < 0.8, truth, rng.integers(0, 6, size=60))
+    m = score_grouping(pred.astype(np.int64), np.array([f"T{t}" for t in truth], dtype=object))
+    assert m.ari == pytest.approx(adjusted_rand_score(truth, pred))
+
+
+def test_large_sparse_grouping_is_scored_exactly():
+    # 20,000 targets of 5 detections: a dense contingency table would need 3 GB.
+    n_targets = 20_000
+    truth = np.repeat(np.arange(n_targets), 5)
+    pred = truth.copy()
+    pred[::5] = (truth[::5] + 1) % n_targets  # every target's first detection misplaced
+    m = score_grouping(pred.astype(np.int64), np.array([f"T{t}" for t in truth], dtype=object))
+    assert m.accuracy == pytest.approx(4 / 5)
+    assert m.complete_targets == 0.0
+
+
+def test_sparse_matching_agrees_with_dense_hungarian():
+    from scipy.optimize import linear_sum_assignment
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        n = int(rng.integers(1, 40))
+        truth = rng.integers(0, int(rng.integers(1, 8)), size=n)
+        pred = rng.integers(0, int(rng.integers(1, 8)), size=n)
+        table = np.zeros((pred.max() + 1, truth.max() + 1), dtype=int)
+        np.add.at(table, (pred, truth), 1)
+        r, c = linear_sum_assignment(table, maximize=True)
+        expected = table[r, c].sum() / n
+        got = score_grouping(
+            pred.astype(np.int64), np.array([f"T{t}" for t in truth], dtype=object)
+        )
+        assert got.accuracy == pytest.approx(expected)

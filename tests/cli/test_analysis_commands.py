@@ -1,0 +1,110 @@
+"""The roadlink command as a user runs it: simulate, associate, reproduce."""
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from service.association import associate
+from service.association.associators import ASSOCIATORS
+from service.association.csvio import read_detections_csv
+from service.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def small_csv(tmp_path_factory):
+    path = tmp_path_factory.mktemp("data") / "small.csv"
+    result = runner.invoke(app, ["simulate", "--preset", "small", "--seed", "3", "-o", str(path)])
+    assert result.exit_code == 0, result.output
+    return path
+
+
+def test_simulate_writes_the_detection_csv(small_csv):
+    d = read_detections_csv(small_csv.read_text())
+    assert len(d) == 100
+    assert small_csv.read_text().splitlines()[0] == (
+        "position,velocity,timestamp,sensor_id,detection_id,target"
+    )
+
+
+@pytest.mark.parametrize("name", sorted(ASSOCIATORS))
+def test_associate_json_is_the_library_result(small_csv, name):
+    result = runner.invoke(app, ["associate", str(small_csv), "--associator", name, "--json"])
+    assert result.exit_code == 0, result.output
+    printed = json.loads(result.stdout)
+    expected = associate(read_detections_csv(small_csv.read_text()), name).to_dict()
+    assert printed == json.loads(json.dumps(expected))
+
+
+def test_associate_csv_prints_the_target_matrix(small_csv):
+    result = runner.invoke(
+        app, ["associate", str(small_csv), "--associator", "svm-quadratic", "--csv"]
+    )
+    assert result.exit_code == 0
+    lines = result.stdout.splitlines()
+    assert lines[0].startswith("target,S1_detection_id,S1_velocity,S1_timestamp,S2_")
+    assert len(lines) == 11
+
+
+def test_params_are_typed_and_checked(small_csv):
+    ok = runner.invoke(
+        app,
+        ["associate", str(small_csv), "--associator", "kmeans", "--param", "n_targets=4", "--json"],
+    )
+    assert ok.exit_code == 0
+    assert json.loads(ok.stdout)["n_targets"] == 4
+    bad = runner.invoke(
+        app, ["associate", str(small_csv), "--associator", "kmeans", "--param", "n_targets=many"]
+    )
+    assert bad.exit_code == 2
+    assert "n_targets" in bad.stderr
+    malformed = runner.invoke(app, ["associate", str(small_csv), "--param", "oops"])
+    assert malformed.exit_code == 2 and "key=value" in malformed.stderr
+
+
+def test_bad_input_is_a_clear_error(tmp_path):
+    path = tmp_path / "bad.csv"
+    path.write_text("position,velocity,timestamp\n0,20,1\n100,-3,6\n")
+    result = runner.invoke(app, ["associate", str(path)])
+    assert result.exit_code == 2
+    assert "row 2, field 'velocity': must be > 0" in result.stderr
+    missing = runner.invoke(app, ["associate", str(tmp_path / "absent.csv")])
+    assert missing.exit_code == 2 and "cannot read" in missing.stderr
+
+
+def test_unlabelled_simulation_has_no_metrics(tmp_path):
+    path = tmp_path / "u.csv"
+    runner.invoke(app, ["simulate", "--unlabelled", "-o", str(path)])
+    result = runner.invoke(app, ["associate", str(path), "--associator", "kmeans++", "--json"])
+    assert json.loads(result.stdout)["metrics"] is None
+
+
+def test_reproduce_prints_the_table_and_writes_the_chart(tmp_path):
+    chart, table = tmp_path / "chart.png", tmp_path / "table.json"
+    result = runner.invoke(
+        app,
+        [
+            "reproduce",
+            "--seeds",
+            "2",
+            "--preset",
+            "small",
+            "--associator",
+            "kmeans++",
+            "--plot",
+            str(chart),
+            "--json",
+            str(table),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "| kmeans++ |" in result.stdout and "| kmeans++ (raw) |" in result.stdout
+    assert chart.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    rows = json.loads(table.read_text())
+    assert {(r["associator"], r["backproject"]) for r in rows} == {
+        ("kmeans++", True),
+        ("kmeans++", False),
+    }
+    assert all(len(r["accuracies"]) == 2 for r in rows)
