@@ -6,11 +6,14 @@ from __future__ import annotations
 from logging.config import fileConfig
 
 from alembic import context
-from sqlalchemy import pool
+from sqlalchemy import pool, text
 
 from service.db.engine import make_engine
 from service.db.models import Base
 from service.settings import Settings
+
+# Any constant shared by every roadlink process: the advisory lock serialising migrations.
+LOCK_KEY = 0x726F61646C696E6B  # "roadlink"
 
 config = context.config
 if config.config_file_name is not None:
@@ -44,6 +47,9 @@ def run_migrations_online() -> None:
             compare_type=True,
         )
         with context.begin_transaction():
+            if connection.dialect.name == "postgresql":
+                # Several API replicas may start at once: one migrates, the others wait.
+                connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": LOCK_KEY})
             context.run_migrations()
     engine.dispose()
 

@@ -46,10 +46,14 @@ class Settings(BaseSettings):
         description="How often an idle worker looks for work when no notification wakes it.",
     )
     max_attempts: int = Field(
-        default=3, ge=1, description="Runs a job gets (a crash or lost lease uses one) before it fails."
+        default=3,
+        ge=1,
+        description="Runs a job gets (a crash or lost lease uses one) before it fails.",
     )
     retry_backoff_seconds: float = Field(
-        default=1.0, ge=0, description="Delay before a crashed job is retried (doubles per attempt)."
+        default=1.0,
+        ge=0,
+        description="Delay before a crashed job is retried (doubles per attempt).",
     )
     max_body_bytes: int = Field(
         default=64 * 1024 * 1024, gt=0, description="Largest request body accepted (413 beyond)."

@@ -1,4 +1,4 @@
-"""Data functions: keyword-only, given a session, never committing (the caller owns the transaction)."""
+"""Data functions: keyword-only, given a session; they never commit (the caller owns that)."""
 
 from __future__ import annotations
 
@@ -61,6 +61,7 @@ def find_batch_by_idempotency_key(
 def insert_batch(
     session: Session,
     *,
+    batch_id: uuid.UUID | None = None,
     deployment_id: uuid.UUID,
     detections: Detections,
     source: str,
@@ -71,6 +72,7 @@ def insert_batch(
     """Store a validated batch; its detections go in by executemany, not one ORM object each."""
     d = detections
     batch = Batch(
+        id=batch_id or uuid.uuid4(),
         deployment_id=deployment_id,
         n_detections=len(d),
         n_labelled=int(d.labelled.sum()),
@@ -106,7 +108,7 @@ def insert_batch(
         }
         for i, (p, v, t, s, did, target) in enumerate(columns, start=1)
     ]
-    statement = insert(Detection.__table__)
+    statement = insert(Detection)
     for start in range(0, len(rows), INSERT_CHUNK):
         session.execute(statement, rows[start : start + INSERT_CHUNK])
     return batch
@@ -143,7 +145,7 @@ def load_detections(
         .where(_selects(deployment_id, selection))
         .order_by(Batch.created_at, Batch.id, Detection.row)
     )
-    rows = session.execute(query).all()
+    rows = list(session.execute(query).all())
     batch_ids = selection.get("batch_ids")
     if batch_ids:  # the order the caller listed them in
         rank = {str(b): k for k, b in enumerate(batch_ids)}
@@ -169,7 +171,9 @@ def load_detections(
 def _selects(deployment_id: uuid.UUID, selection: dict[str, Any]) -> Any:
     condition = Detection.deployment_id == deployment_id
     if selection.get("batch_ids"):
-        return condition & Detection.batch_id.in_([uuid.UUID(str(b)) for b in selection["batch_ids"]])
+        return condition & Detection.batch_id.in_(
+            [uuid.UUID(str(b)) for b in selection["batch_ids"]]
+        )
     if selection.get("start") is not None:
         condition &= Detection.timestamp >= float(selection["start"])
     if selection.get("end") is not None:

@@ -65,7 +65,9 @@ def enqueue_job(
     session.flush()
     if session.get_bind().dialect.name == "postgresql":
         # Delivered at commit, and never if the transaction rolls back.
-        session.execute(text("SELECT pg_notify(:channel, :id)"), {"channel": NOTIFY_CHANNEL, "id": str(job.id)})
+        session.execute(
+            text("SELECT pg_notify(:channel, :id)"), {"channel": NOTIFY_CHANNEL, "id": str(job.id)}
+        )
     else:
         local_enqueue_signal.set()
     return job
@@ -115,7 +117,9 @@ def claim_next_job(
 
 
 def _running_as(job_id: uuid.UUID, worker_id: str) -> Any:
-    return (Job.id == job_id) & (Job.state == JobState.RUNNING.value) & (Job.lease_owner == worker_id)
+    return (
+        (Job.id == job_id) & (Job.state == JobState.RUNNING.value) & (Job.lease_owner == worker_id)
+    )
 
 
 def heartbeat_job(
@@ -227,7 +231,9 @@ def release_job(session: Session, *, job_id: uuid.UUID, worker_id: str) -> bool:
     )
     released = session.execute(statement).rowcount == 1  # type: ignore[attr-defined]
     if released and session.get_bind().dialect.name == "postgresql":
-        session.execute(text("SELECT pg_notify(:channel, :id)"), {"channel": NOTIFY_CHANNEL, "id": str(job_id)})
+        session.execute(
+            text("SELECT pg_notify(:channel, :id)"), {"channel": NOTIFY_CHANNEL, "id": str(job_id)}
+        )
     return released
 
 
@@ -240,9 +246,7 @@ def cancel_job(session: Session, *, job_id: uuid.UUID, now: datetime | None = No
     now = now or utcnow()
     statement = (
         update(Job)
-        .where(
-            Job.id == job_id, Job.state.in_([JobState.QUEUED.value, JobState.RUNNING.value])
-        )
+        .where(Job.id == job_id, Job.state.in_([JobState.QUEUED.value, JobState.RUNNING.value]))
         .values(
             state=JobState.CANCELLED.value,
             finished_at=now,

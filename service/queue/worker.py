@@ -65,7 +65,7 @@ class Worker:
             log.info("worker %s stopped", self.id)
 
     def run_once(self) -> bool:
-        """Rescue expired leases when due, then claim and run one job; False when none was queued."""
+        """Rescue expired leases when due, then claim and run one job; False if none was queued."""
         self._rescue_when_due()
         with transaction(self.sessions) as session:
             job = claim_next_job(
@@ -118,7 +118,9 @@ class Worker:
             return
         except Exception as exc:
             log.exception("job %s crashed", job.id)
-            self._failed(job, f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=5)}", retry=True)
+            self._failed(
+                job, f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=5)}", retry=True
+            )
             return
         finally:
             done.set()
