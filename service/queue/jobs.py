@@ -78,9 +78,12 @@ def claim_next_job(
 ) -> ClaimedJob | None:
     """Atomically take the oldest runnable queued job, or None when there is none.
 
-    One statement on both databases: `UPDATE ... WHERE id IN (SELECT ... LIMIT 1) RETURNING`.
+    One statement on both databases: `UPDATE ... WHERE id = (SELECT ... LIMIT 1) RETURNING`.
     PostgreSQL adds FOR UPDATE SKIP LOCKED, so concurrent workers each take a different job
     without waiting; SQLite serialises writers, so the statement is atomic as it stands.
+    The sub-select is compared with `=`, not `IN`: PostgreSQL may run an `IN (...)` sub-select
+    once per candidate row, and with SKIP LOCKED each run finds another job, so one claim
+    would take them all (the `=` form is evaluated once).
     """
     now = now or utcnow()
     candidate = (
@@ -92,7 +95,7 @@ def claim_next_job(
     )
     statement = (
         update(Job)
-        .where(Job.id.in_(candidate), Job.state == JobState.QUEUED.value)
+        .where(Job.id == candidate.scalar_subquery(), Job.state == JobState.QUEUED.value)
         .values(
             state=JobState.RUNNING.value,
             lease_owner=worker_id,
@@ -281,7 +284,6 @@ def rescue_expired_jobs(session: Session, *, now: datetime | None = None) -> tup
         .where(expired, Job.attempts < Job.max_attempts)
         .values(
             state=JobState.QUEUED.value,
-            run_after=now,
             lease_owner=None,
             lease_expires_at=None,
             error="the worker running this job stopped responding (its lease expired); retried",
