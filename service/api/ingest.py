@@ -78,15 +78,7 @@ def parse_json_batch(
         raise ApiProblem(422, _count(items), errors=items)
     columns = {name: [row.get(name) for row in rows] for name in DETECTION_FIELDS}
     with_sensors = _fill_declared_sensors(columns, sensors, json_body=True)
-    try:
-        detections = Detections.from_columns(**with_sensors)
-    except DetectionError as exc:
-        raise ApiProblem(
-            422,
-            _count(exc.problems),
-            errors=problems_from_detections(exc.problems, json_prefix="/detections"),
-        ) from None
-    return detections, envelope.associate
+    return validate_columns(with_sensors, "/detections"), envelope.associate
 
 
 def parse_csv_batch(body: bytes, sensors: list[dict[str, Any]] | None) -> Detections:
@@ -98,36 +90,70 @@ def parse_csv_batch(body: bytes, sensors: list[dict[str, Any]] | None) -> Detect
     try:
         detections = read_detections_csv(text)
     except DetectionError as exc:
-        raise ApiProblem(
-            422, _count(exc.problems), errors=problems_from_detections(exc.problems)
-        ) from None
-    if sensors is None:
-        return detections
-    # Check the declared sensors against the sensor ids as written in the file, not as the core
-    # generated them from position rank.
-    columns = {
-        "position": detections.position,
-        "velocity": detections.velocity,
-        "timestamp": detections.timestamp,
-        "sensor_id": _csv_sensor_column(text, len(detections)),
-        "detection_id": detections.detection_id.tolist(),
-        "target": detections.target.tolist(),
-    }
+        if not _only_one_position(exc):
+            raise ApiProblem(
+                422, _count(exc.problems), errors=problems_from_detections(exc.problems)
+            ) from None
+    else:
+        if sensors is None:
+            return detections
+    # The file is well-formed (the core read it); the declared sensors are checked against the
+    # sensor ids as written in it, not as the core generated them from position rank.
+    columns = _csv_columns(text)
+    return validate_columns(_fill_declared_sensors(columns, sensors, json_body=False), None)
+
+
+def validate_columns(columns: dict[str, Any], json_prefix: str | None) -> Detections:
+    """The core's validation of raw columns, as problem details.
+
+    A batch may hold a single sensor's detections (one gateway per sensor is common; a job joins
+    the batches), although the core needs two sensor positions to associate. When that is the
+    only objection, the batch is validated with one extra detection at another position, which
+    is then dropped: every real detection still passes the core's checks, and the job checks
+    the two positions when it runs.
+    """
     try:
-        return Detections.from_columns(**_fill_declared_sensors(columns, sensors, json_body=False))
+        return Detections.from_columns(**columns)
     except DetectionError as exc:
-        raise ApiProblem(
-            422, _count(exc.problems), errors=problems_from_detections(exc.problems)
-        ) from None
+        if not _only_one_position(exc):
+            raise ApiProblem(
+                422,
+                _count(exc.problems),
+                errors=problems_from_detections(exc.problems, json_prefix=json_prefix),
+            ) from None
+    n = len(columns["position"])
+    only = _as_float(columns["position"][0])
+    padded: dict[str, Any] = {
+        "position": [*columns["position"], (only or 0.0) + 1.0],
+        "velocity": [*columns["velocity"], 1.0],
+        "timestamp": [*columns["timestamp"], 0.0],
+    }
+    for name in ("sensor_id", "detection_id"):
+        values = columns.get(name)
+        # An id no real input holds (it starts with a NUL character), so it cannot collide.
+        padded[name] = None if values is None else [*values, "\0padding"]
+    target = columns.get("target")
+    padded["target"] = None if target is None else [*target, None]
+    return Detections.from_columns(**padded).take(np.arange(n))
 
 
-def _csv_sensor_column(text: str, n: int) -> list[str | None]:
+def _only_one_position(error: DetectionError) -> bool:
+    return [(p.row, p.field) for p in error.problems] == [(None, "position")] and (
+        "two distinct sensor positions" in error.problems[0].message
+    )
+
+
+def _csv_columns(text: str) -> dict[str, Any]:
+    """The columns of a CSV the core has already read without objection (same conventions:
+    lower-cased header, blank lines skipped, empty cells absent)."""
     reader = csv.reader(io.StringIO(text.lstrip("\ufeff")))
     header = [h.strip().lower() for h in next(reader)]
-    if "sensor_id" not in header:
-        return [None] * n
-    k = header.index("sensor_id")
-    return [row[k].strip() or None for row in reader if any(c.strip() for c in row)]
+    rows = [row for row in reader if any(cell.strip() for cell in row)]
+    columns: dict[str, Any] = dict.fromkeys(DETECTION_FIELDS)
+    for k, name in enumerate(header):
+        if name in DETECTION_FIELDS:
+            columns[name] = [row[k].strip() or None for row in rows]
+    return columns
 
 
 def _fill_declared_sensors(
@@ -140,7 +166,7 @@ def _fill_declared_sensors(
     by_id = {s["sensor_id"]: float(s["position"]) for s in sensors}
     by_position = {float(s["position"]): s["sensor_id"] for s in sensors}
     positions = columns["position"]
-    given = columns["sensor_id"]
+    given = columns["sensor_id"] or [None] * len(positions)
     filled: list[str | None] = []
     items: list[ProblemItem] = []
     for i, (sensor, position) in enumerate(zip(given, positions, strict=True)):

@@ -12,7 +12,6 @@ from prometheus_client.registry import Collector
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.requests import Request
 from starlette.responses import Response
-from starlette.routing import Match
 
 from service.db.repository import count_jobs_by_state, job_duration_histogram
 
@@ -70,7 +69,6 @@ class ApiMetrics:
     ) -> Response:
         """Count and time every request, labelled by its route template (not its path, which
         would make a label per id)."""
-        route = _route_template(request)
         started = time.perf_counter()
         status = 500
         try:
@@ -78,13 +76,12 @@ class ApiMetrics:
             status = response.status_code
             return response
         finally:
+            route = _route_template(request)
             self.requests.labels(request.method, route, str(status)).inc()
             self.latency.labels(request.method, route).observe(time.perf_counter() - started)
 
 
 def _route_template(request: Request) -> str:
-    for route in request.app.router.routes:
-        match, _ = route.matches(request.scope)
-        if match == Match.FULL:
-            return str(getattr(route, "path", "other"))
-    return "unmatched"
+    # The router records the route it matched in the (shared) scope.
+    route = request.scope.get("route")
+    return str(getattr(route, "path_format", None) or "unmatched")

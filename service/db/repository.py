@@ -116,10 +116,13 @@ def insert_batch(
 
 def count_selected_detections(
     session: Session, *, deployment_id: uuid.UUID, selection: dict[str, Any]
-) -> int:
-    """How many detections a job selection covers now."""
-    query = select(func.count()).select_from(Detection).where(_selects(deployment_id, selection))
-    return int(session.scalar(query) or 0)
+) -> tuple[int, int]:
+    """How many detections a job selection covers now, and at how many distinct positions."""
+    query = select(func.count(), func.count(Detection.position.distinct())).where(
+        _selects(deployment_id, selection)
+    )
+    n, positions = session.execute(query).one()
+    return int(n or 0), int(positions or 0)
 
 
 def load_detections(

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import uuid
+
 from sqlalchemy import Engine
 
 from service.association.csvio import read_detections_csv, write_detections_csv
@@ -11,7 +13,7 @@ from service.db.engine import make_session_factory, transaction
 from service.simulation import preset, simulate
 
 
-def _store(engine: Engine, *batches: Detections) -> tuple[object, list[object]]:
+def _store(engine: Engine, *batches: Detections) -> tuple[uuid.UUID, list[uuid.UUID]]:
     factory = make_session_factory(engine)
     with transaction(factory) as session:
         deployment = repository.create_deployment(session, name="road", sensors=None)
@@ -56,7 +58,7 @@ def test_a_time_window_spans_batches_and_keeps_reused_ids_apart(engine: Engine) 
         )
     # [2, 12.5): 4.3 and 10 from each batch.
     assert sorted(window.timestamp.tolist()) == [4.3, 4.3, 10.0, 10.0]
-    assert count == 4
+    assert count == (4, 2)
     assert len(set(window.detection_id.tolist())) == 4
     owners = [d.split(":")[0] for d in window.detection_id]
     # Qualified by batch, and in upload order: the first batch's detections, then the second's.

@@ -70,13 +70,21 @@ def create_job(body: JobCreate, session: SessionDep, settings: SettingsDep) -> J
             )
         deployment_id = deployments.pop()
         selection = {"batch_ids": list(dict.fromkeys(str(b) for b in batch_ids))}
-    if not repository.count_selected_detections(
+    n, positions = repository.count_selected_detections(
         session, deployment_id=deployment_id, selection=selection
-    ):
+    )
+    if n == 0:
         raise ApiProblem(
             422,
             "the job selects no detections: widen the time window or post a batch first",
             errors=[ProblemItem(field="start", message="the window holds no detections")],
+        )
+    if positions < 2:
+        raise ApiProblem(
+            422,
+            "the job's detections all come from one sensor position; association needs at "
+            "least two: add the batches of the other sensors",
+            errors=[ProblemItem(field="batch_ids", message="one sensor position only")],
         )
     job = enqueue_job(
         session,
