@@ -229,10 +229,14 @@ def _row_item(index: int, field: str, message: str, json_body: bool = True) -> P
 
 
 def _count(items: Sequence[ProblemItem | Problem]) -> str:
+    """A one-line summary: how many detections are invalid, and the first problem."""
     rows = {i.row for i in items if i.row is not None}
+    first = min(items, key=lambda i: (i.row is None, i.row or 0))
+    where = f"field '{first.field}': " if first.field else ""
     if not rows:
-        return "; ".join(f"{i.field}: {i.message}" if i.field else i.message for i in items[:5])
-    return (
-        f"{len(rows)} detection{'s' if len(rows) != 1 else ''} invalid, first at row {min(rows)}: "
-        + str(items[0].message)
-    )
+        return "; ".join(
+            f"field '{i.field}': {i.message}" if i.field else i.message for i in items[:5]
+        )
+    count = f"{len(rows)} detection is" if len(rows) == 1 else f"{len(rows)} detections are"
+    row = f"row {first.row}, " if first.row is not None else ""
+    return f"{count} invalid; the first: {row}{where}{first.message}"
