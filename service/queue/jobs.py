@@ -73,6 +73,13 @@ def enqueue_job(
     return job
 
 
+def has_runnable_job(session: Session, *, now: datetime | None = None) -> bool:
+    """Whether a queued job is due: a read, so idle workers polling SQLite take no write lock."""
+    now = now or utcnow()
+    query = select(Job.id).where(Job.state == JobState.QUEUED.value, Job.run_after <= now).limit(1)
+    return session.execute(query).first() is not None
+
+
 def claim_next_job(
     session: Session, *, worker_id: str, lease_seconds: float, now: datetime | None = None
 ) -> ClaimedJob | None:

@@ -27,6 +27,7 @@ from service.queue.jobs import (
     claim_next_job,
     complete_job,
     fail_job,
+    has_runnable_job,
     heartbeat_job,
     release_job,
     rescue_expired_jobs,
@@ -68,6 +69,9 @@ class Worker:
     def run_once(self) -> bool:
         """Rescue expired leases when due, then claim and run one job; False if none was queued."""
         self._rescue_when_due()
+        with self.sessions() as session:
+            if not has_runnable_job(session):
+                return False
         with transaction(self.sessions) as session:
             job = claim_next_job(
                 session, worker_id=self.id, lease_seconds=self.settings.lease_seconds

@@ -13,11 +13,12 @@ from sqlalchemy import inspect
 from service.db.engine import make_engine
 from service.db.migrate import alembic_config, current_revision, head_revision, migrations_directory
 from service.db.models import Base
+from tests.conftest import BACKENDS
 
 REPO = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("empty_database_url", ["sqlite", "postgresql"], indirect=True)
+@pytest.mark.parametrize("empty_database_url", BACKENDS, indirect=True)
 def test_upgrade_check_downgrade_with_alembic_ini(empty_database_url: str) -> None:
     """`alembic upgrade head`, then `alembic check`, then `alembic downgrade base`, as a
     developer runs them from the checkout."""
