@@ -15,3 +15,4 @@ app = typer.Typer(
 from service.cli import analysis, reproduce  # noqa: E402,F401
 
 __all__ = ["app"]
+from service.cli import server  # noqa: E402,F401

@@ -1,0 +1,240 @@
+"""Jobs: associations run by the workers, their progress and their results."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+import uuid
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Query, Request, Response
+from sqlalchemy.orm import Session, sessionmaker
+from starlette.concurrency import run_in_threadpool
+
+from service.api.deps import SessionDep, SessionFactoryDep, SettingsDep
+from service.api.errors import ApiProblem, ProblemItem, problem_responses
+from service.api.routers.batches import checked_associate
+from service.api.schemas import AssociateRequest, AssociationResultRead, JobCreate, JobRead
+from service.db import repository
+from service.db.models import Job, JobState
+from service.queue.jobs import cancel_job, enqueue_job
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+
+# A waiting result request re-reads the job this often at first, backing off to the maximum.
+WAIT_FIRST_POLL_SECONDS = 0.02
+WAIT_MAX_POLL_SECONDS = 0.25
+
+MATRIX_CSV_EXAMPLE = (
+    "target,S1_detection_id,S1_velocity,S1_timestamp,S2_detection_id,S2_velocity,S2_timestamp\n"
+    "T1,d1,30.2,12.4,d2,30.5,15.7\n"
+)
+
+
+@router.post(
+    "",
+    name="create",
+    status_code=202,
+    response_model=JobRead,
+    responses=problem_responses(404, 413, 422),
+    summary="Enqueue an association job",
+)
+def create_job(body: JobCreate, session: SessionDep, settings: SettingsDep) -> JobRead:
+    """Associate one batch, several batches of one deployment, or a deployment's detections in
+    the time window [start, end) (either end may be left open)."""
+    params = checked_associate(AssociateRequest(associator=body.associator, params=body.params))
+    selection: dict[str, Any]
+    if body.deployment_id is not None:
+        deployment_id = body.deployment_id
+        if repository.get_deployment(session, deployment_id=deployment_id) is None:
+            raise ApiProblem(404, f"there is no deployment {deployment_id}")
+        selection = {"start": body.start, "end": body.end}
+    else:
+        batch_ids = [body.batch_id] if body.batch_id is not None else list(body.batch_ids or [])
+        deployments = set()
+        for k, batch_id in enumerate(batch_ids):
+            batch = repository.get_batch(session, batch_id=batch_id)
+            if batch is None:
+                field = "batch_id" if body.batch_id is not None else f"batch_ids.{k}"
+                raise ApiProblem(
+                    422,
+                    f"there is no batch {batch_id}",
+                    errors=[ProblemItem(field=field, message="no such batch")],
+                )
+            deployments.add(batch.deployment_id)
+        if len(deployments) > 1:
+            raise ApiProblem(
+                422,
+                "the batches belong to different deployments; a job covers one deployment",
+                errors=[ProblemItem(field="batch_ids", message="span several deployments")],
+            )
+        deployment_id = deployments.pop()
+        selection = {"batch_ids": list(dict.fromkeys(str(b) for b in batch_ids))}
+    n, positions = repository.count_selected_detections(
+        session, deployment_id=deployment_id, selection=selection
+    )
+    if n == 0:
+        raise ApiProblem(
+            422,
+            "the job selects no detections: widen the time window or post a batch first",
+            errors=[ProblemItem(field="start", message="the window holds no detections")],
+        )
+    if positions < 2:
+        raise ApiProblem(
+            422,
+            "the job's detections all come from one sensor position; association needs at "
+            "least two: add the batches of the other sensors",
+            errors=[ProblemItem(field="batch_ids", message="one sensor position only")],
+        )
+    job = enqueue_job(
+        session,
+        deployment_id=deployment_id,
+        selection=selection,
+        associator=body.associator,
+        params=params,
+        max_attempts=settings.max_attempts,
+    )
+    session.commit()
+    return JobRead.model_validate(job)
+
+
+@router.get(
+    "",
+    name="list",
+    response_model=list[JobRead],
+    responses=problem_responses(422),
+    summary="List jobs",
+)
+def list_jobs(
+    session: SessionDep,
+    deployment_id: uuid.UUID | None = Query(default=None, description="Only this deployment's."),
+    limit: int = Query(default=100, ge=1, le=1000, description="Page size."),
+    offset: int = Query(default=0, ge=0, description="Jobs to skip."),
+) -> list[JobRead]:
+    """Jobs, newest first."""
+    found = repository.list_jobs(session, deployment_id=deployment_id, limit=limit, offset=offset)
+    return [JobRead.model_validate(j) for j in found]
+
+
+@router.get(
+    "/{job_id}",
+    name="get",
+    response_model=JobRead,
+    responses=problem_responses(404, 422),
+    summary="Get a job's status and progress",
+)
+def get_job(job_id: uuid.UUID, session: SessionDep) -> JobRead:
+    """State (queued, running, succeeded, failed, cancelled), progress and attempts."""
+    return JobRead.model_validate(_require_job(session, job_id))
+
+
+@router.get(
+    "/{job_id}/result",
+    name="get_result",
+    response_model=AssociationResultRead,
+    responses={
+        200: {
+            "description": "The association result (JSON), or with ?format=csv the target x "
+            "sensor matrix.",
+            "content": {"text/csv": {"schema": {"type": "string"}, "example": MATRIX_CSV_EXAMPLE}},
+        },
+        **problem_responses(404, 409, 422),
+    },
+    summary="Get a job's result",
+)
+async def get_result(
+    job_id: uuid.UUID,
+    request: Request,
+    settings: SettingsDep,
+    sessions: SessionFactoryDep,
+    wait: Annotated[
+        float,
+        Query(
+            ge=0,
+            description="Wait up to this many seconds for an unfinished job to finish "
+            "(capped at ROADLINK_MAX_WAIT_SECONDS), so no polling loop is needed.",
+        ),
+    ] = 0.0,
+    format: Annotated[
+        Literal["json", "csv"],
+        Query(description="json: the result document; csv: the target x sensor matrix."),
+    ] = "json",
+) -> Response:
+    """The result of a succeeded job: the same document `roadlink associate --json` prints for
+    the same detections and parameters. 409 while the job is unfinished (or if it failed or was
+    cancelled)."""
+    deadline = time.monotonic() + min(wait, settings.max_wait_seconds)
+    pause = WAIT_FIRST_POLL_SECONDS
+    while True:
+        job = await run_in_threadpool(_read_job, sessions, job_id)
+        if job is None:
+            raise ApiProblem(404, f"there is no job {job_id}")
+        if JobState(job.state).finished or time.monotonic() >= deadline:
+            break
+        if await request.is_disconnected():
+            raise ApiProblem(408, "the client went away while waiting")
+        await asyncio.sleep(min(pause, max(deadline - time.monotonic(), 0.0)))
+        pause = min(pause * 2, WAIT_MAX_POLL_SECONDS)
+    if job.state != JobState.SUCCEEDED.value:
+        raise ApiProblem(409, _unfinished_detail(job))
+    stored = await run_in_threadpool(_read_result, sessions, job_id)
+    if stored is None:  # succeeded without a result cannot happen: both commit together
+        raise ApiProblem(500, f"job {job_id} succeeded but its result is missing")
+    result_json, matrix_csv = stored
+    if format == "csv":
+        return Response(matrix_csv, media_type="text/csv")
+    return Response(result_json, media_type="application/json")
+
+
+@router.post(
+    "/{job_id}/cancel",
+    name="cancel",
+    response_model=JobRead,
+    responses=problem_responses(404, 409, 422),
+    summary="Cancel a job",
+)
+def cancel(job_id: uuid.UUID, session: SessionDep) -> JobRead:
+    """Cancel a queued or running job (a running one stops at its next progress report and
+    stores nothing). Cancelling a cancelled job is a no-op; a finished one is 409."""
+    job = _require_job(session, job_id)
+    if job.state == JobState.CANCELLED.value:
+        return JobRead.model_validate(job)
+    if not cancel_job(session, job_id=job_id):
+        session.rollback()
+        job = _require_job(session, job_id)
+        if job.state != JobState.CANCELLED.value:
+            raise ApiProblem(
+                409, f"job {job_id} has already {job.state}; there is nothing to cancel"
+            )
+    session.commit()
+    session.expire_all()
+    return JobRead.model_validate(_require_job(session, job_id))
+
+
+def _require_job(session: Session, job_id: uuid.UUID) -> Job:
+    job = repository.get_job(session, job_id=job_id)
+    if job is None:
+        raise ApiProblem(404, f"there is no job {job_id}")
+    return job
+
+
+def _read_job(sessions: sessionmaker[Session], job_id: uuid.UUID) -> Job | None:
+    with sessions() as session:
+        return repository.get_job(session, job_id=job_id)
+
+
+def _read_result(sessions: sessionmaker[Session], job_id: uuid.UUID) -> tuple[str, str] | None:
+    with sessions() as session:
+        stored = repository.get_job_result(session, job_id=job_id)
+        return None if stored is None else (stored.result_json, stored.matrix_csv)
+
+
+def _unfinished_detail(job: Job) -> str:
+    if job.state == JobState.FAILED.value:
+        return f"job {job.id} failed, so it has no result: {job.error}"
+    if job.state == JobState.CANCELLED.value:
+        return f"job {job.id} was cancelled, so it has no result"
+    return (
+        f"job {job.id} is {job.state} ({job.progress:.0%} done); ask again later, "
+        "or add ?wait=SECONDS to wait for it"
+    )

@@ -1,0 +1,202 @@
+"""The schema. Detections are stored one row each, written in bulk (Core executemany)."""
+
+from __future__ import annotations
+
+import enum
+import uuid
+from datetime import UTC, datetime
+from typing import Any, ClassVar
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    DateTime,
+    Dialect,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    MetaData,
+    String,
+    Text,
+    TypeDecorator,
+    UniqueConstraint,
+    Uuid,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+# Stable constraint names, so that migrations can refer to them on every database.
+NAMING_CONVENTION = {
+    "ix": "ix_%(column_0_label)s",
+    "uq": "uq_%(table_name)s_%(column_0_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+
+def utcnow() -> datetime:
+    """The current time, timezone-aware UTC (every timestamp the service stores is UTC)."""
+    return datetime.now(UTC)
+
+
+class UTCDateTime(TypeDecorator[datetime]):
+    """A UTC timestamp on every database.
+
+    SQLite has no time zones: values are stored as naive UTC and come back aware, so comparisons
+    such as `lease_expires_at < now` mean the same on SQLite and PostgreSQL.
+    """
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        if value.tzinfo is None:
+            raise ValueError("naive datetime given; the service stores UTC only")
+        value = value.astimezone(UTC)
+        return value.replace(tzinfo=None) if dialect.name == "sqlite" else value
+
+    def process_result_value(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+
+
+# SQLite only auto-increments an INTEGER PRIMARY KEY; PostgreSQL gets a BIGINT identity.
+DetectionKey = BigInteger().with_variant(Integer(), "sqlite")
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING_CONVENTION)
+    type_annotation_map: ClassVar[dict[Any, Any]] = {
+        datetime: UTCDateTime(),
+        dict[str, Any]: JSON(),
+        uuid.UUID: Uuid(),
+    }
+
+
+class JobState(enum.StrEnum):
+    """Where a job is in its life: queued -> running -> succeeded | failed | cancelled."""
+
+    QUEUED = "queued"
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+
+    @property
+    def finished(self) -> bool:
+        return self in (JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED)
+
+
+class Deployment(Base):
+    """A stretch of road with its sensors; batches and jobs belong to one."""
+
+    __tablename__ = "deployment"
+
+    id: Mapped[uuid.UUID] = mapped_column(primary_key=True, default=uuid.uuid4)
+    name: Mapped[str] = mapped_column(String(200))
+    # [{"sensor_id": ..., "position": ...}] in road order, or null when sensors are not declared.
+    sensors: Mapped[list[dict[str, Any]] | None] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Batch(Base):
+    """One upload of detections (JSON or CSV, or a simulation)."""
+
+    __tablename__ = "batch"
+    __table_args__ = (
+        UniqueConstraint(
+            "deployment_id", "idempotency_key", name="uq_batch_deployment_id_idempotency_key"
+        ),
+    )
+
+    id: Mapped[uuid.UUID] = mapped_column(primary_key=True, default=uuid.uuid4)
+    deployment_id: Mapped[uuid.UUID] = mapped_column(
+        ForeignKey("deployment.id", ondelete="CASCADE"), index=True
+    )
+    n_detections: Mapped[int] = mapped_column(Integer)
+    n_labelled: Mapped[int] = mapped_column(Integer)
+    first_timestamp: Mapped[float] = mapped_column(Float)
+    last_timestamp: Mapped[float] = mapped_column(Float)
+    source: Mapped[str] = mapped_column(String(20))  # json | csv | simulation
+    idempotency_key: Mapped[str | None] = mapped_column(String(200))
+    # sha256 of the request, so that a reused key with a different body is told apart.
+    request_sha256: Mapped[str | None] = mapped_column(String(64))
+    # The job enqueued with the batch (`associate` in the upload), in the same transaction.
+    job_id: Mapped[uuid.UUID | None] = mapped_column(ForeignKey("job.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Detection(Base):
+    """One sensor report. `row` keeps the order of the upload (1-based, as in problem details)."""
+
+    __tablename__ = "detection"
+    __table_args__ = (
+        Index("ix_detection_batch_id_row", "batch_id", "row", unique=True),
+        Index("ix_detection_deployment_id_timestamp", "deployment_id", "timestamp"),
+    )
+
+    id: Mapped[int] = mapped_column(DetectionKey, primary_key=True, autoincrement=True)
+    batch_id: Mapped[uuid.UUID] = mapped_column(ForeignKey("batch.id", ondelete="CASCADE"))
+    # Denormalised from the batch so that a time window over a deployment is one index range.
+    deployment_id: Mapped[uuid.UUID] = mapped_column(
+        ForeignKey("deployment.id", ondelete="CASCADE")
+    )
+    row: Mapped[int] = mapped_column(Integer)
+    position: Mapped[float] = mapped_column(Float)
+    velocity: Mapped[float] = mapped_column(Float)
+    timestamp: Mapped[float] = mapped_column(Float)
+    sensor_id: Mapped[str] = mapped_column(String(200))
+    detection_id: Mapped[str] = mapped_column(String(200))
+    target: Mapped[str | None] = mapped_column(String(200))
+
+
+class Job(Base):
+    """An association to run: which detections, with which associator, and where it stands."""
+
+    __tablename__ = "job"
+    __table_args__ = (
+        # The claim query: the oldest runnable queued job.
+        Index("ix_job_state_run_after", "state", "run_after"),
+    )
+
+    id: Mapped[uuid.UUID] = mapped_column(primary_key=True, default=uuid.uuid4)
+    deployment_id: Mapped[uuid.UUID] = mapped_column(
+        ForeignKey("deployment.id", ondelete="CASCADE"), index=True
+    )
+    # {"batch_ids": [...]} or {"start": t0 | null, "end": t1 | null} over the deployment.
+    selection: Mapped[dict[str, Any]] = mapped_column(JSON)
+    associator: Mapped[str] = mapped_column(String(100))
+    params: Mapped[dict[str, Any]] = mapped_column(JSON)
+    state: Mapped[str] = mapped_column(String(20), default=JobState.QUEUED.value)
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    max_attempts: Mapped[int] = mapped_column(Integer)
+    run_after: Mapped[datetime] = mapped_column(default=utcnow)
+    lease_owner: Mapped[str | None] = mapped_column(String(200))
+    lease_expires_at: Mapped[datetime | None] = mapped_column()
+    error: Mapped[str | None] = mapped_column(Text)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    started_at: Mapped[datetime | None] = mapped_column()
+    finished_at: Mapped[datetime | None] = mapped_column()
+    duration_seconds: Mapped[float | None] = mapped_column(Float)
+    # How many detections the job covered (known once it ran).
+    n_detections: Mapped[int | None] = mapped_column(Integer)
+
+
+class JobResult(Base):
+    """A succeeded job's result, written in the transaction that marks the job succeeded."""
+
+    __tablename__ = "job_result"
+
+    job_id: Mapped[uuid.UUID] = mapped_column(
+        ForeignKey("job.id", ondelete="CASCADE"), primary_key=True
+    )
+    # AssociationResult.to_dict() serialised once, served as is.
+    result_json: Mapped[str] = mapped_column(Text)
+    matrix_csv: Mapped[str] = mapped_column(Text)
+    accuracy: Mapped[float | None] = mapped_column(Float)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)

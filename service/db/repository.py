@@ -1,0 +1,223 @@
+"""Data functions: keyword-only, given a session; they never commit (the caller owns that)."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from sqlalchemy import func, insert, select
+from sqlalchemy.orm import Session
+
+from service.association.detections import Detections
+from service.db.models import Batch, Deployment, Detection, Job, JobResult, JobState
+
+# Rows per INSERT executemany call: bounds the memory of one statement's parameters.
+INSERT_CHUNK = 5_000
+
+
+def create_deployment(
+    session: Session, *, name: str, sensors: list[dict[str, Any]] | None
+) -> Deployment:
+    """Add a deployment (sensors in road order, or None when not declared)."""
+    deployment = Deployment(name=name, sensors=sensors)
+    session.add(deployment)
+    session.flush()
+    return deployment
+
+
+def get_deployment(session: Session, *, deployment_id: uuid.UUID) -> Deployment | None:
+    """The deployment, or None."""
+    return session.get(Deployment, deployment_id)
+
+
+def list_deployments(session: Session, *, limit: int, offset: int) -> Sequence[Deployment]:
+    """Deployments, oldest first."""
+    query = (
+        select(Deployment)
+        .order_by(Deployment.created_at, Deployment.id)
+        .limit(limit)
+        .offset(offset)
+    )
+    return session.scalars(query).all()
+
+
+def get_batch(session: Session, *, batch_id: uuid.UUID) -> Batch | None:
+    """The batch, or None."""
+    return session.get(Batch, batch_id)
+
+
+def find_batch_by_idempotency_key(
+    session: Session, *, deployment_id: uuid.UUID, idempotency_key: str
+) -> Batch | None:
+    """The batch created earlier with this Idempotency-Key in this deployment, if any."""
+    query = select(Batch).where(
+        Batch.deployment_id == deployment_id, Batch.idempotency_key == idempotency_key
+    )
+    return session.scalars(query).first()
+
+
+def insert_batch(
+    session: Session,
+    *,
+    batch_id: uuid.UUID | None = None,
+    deployment_id: uuid.UUID,
+    detections: Detections,
+    source: str,
+    idempotency_key: str | None = None,
+    request_sha256: str | None = None,
+    job_id: uuid.UUID | None = None,
+) -> Batch:
+    """Store a validated batch; its detections go in by executemany, not one ORM object each."""
+    d = detections
+    batch = Batch(
+        id=batch_id or uuid.uuid4(),
+        deployment_id=deployment_id,
+        n_detections=len(d),
+        n_labelled=int(d.labelled.sum()),
+        first_timestamp=float(d.timestamp.min()),
+        last_timestamp=float(d.timestamp.max()),
+        source=source,
+        idempotency_key=idempotency_key,
+        request_sha256=request_sha256,
+        job_id=job_id,
+    )
+    session.add(batch)
+    session.flush()
+    columns = zip(
+        d.position.tolist(),
+        d.velocity.tolist(),
+        d.timestamp.tolist(),
+        d.sensor_id.tolist(),
+        d.detection_id.tolist(),
+        d.target.tolist(),
+        strict=True,
+    )
+    rows = [
+        {
+            "batch_id": batch.id,
+            "deployment_id": deployment_id,
+            "row": i,
+            "position": p,
+            "velocity": v,
+            "timestamp": t,
+            "sensor_id": s,
+            "detection_id": did,
+            "target": target,
+        }
+        for i, (p, v, t, s, did, target) in enumerate(columns, start=1)
+    ]
+    statement = insert(Detection)
+    for start in range(0, len(rows), INSERT_CHUNK):
+        session.execute(statement, rows[start : start + INSERT_CHUNK])
+    return batch
+
+
+def count_selected_detections(
+    session: Session, *, deployment_id: uuid.UUID, selection: dict[str, Any]
+) -> tuple[int, int]:
+    """How many detections a job selection covers now, and at how many distinct positions."""
+    query = select(func.count(), func.count(Detection.position.distinct())).where(
+        _selects(deployment_id, selection)
+    )
+    n, positions = session.execute(query).one()
+    return int(n or 0), int(positions or 0)
+
+
+def load_detections(
+    session: Session, *, deployment_id: uuid.UUID, selection: dict[str, Any]
+) -> Detections:
+    """The detections a job selects, in upload order (batch by batch, row by row).
+
+    A single batch comes back exactly as uploaded, so the service computes what the CLI computes
+    from the same file. When several batches reuse a detection id (each gateway numbering its own
+    d1, d2, ...), every id is qualified as `<batch_id>:<detection_id>` to keep them distinct.
+    """
+    query = (
+        select(
+            Detection.position,
+            Detection.velocity,
+            Detection.timestamp,
+            Detection.sensor_id,
+            Detection.detection_id,
+            Detection.target,
+            Detection.batch_id,
+        )
+        .join(Batch, Batch.id == Detection.batch_id)
+        .where(_selects(deployment_id, selection))
+        .order_by(Batch.created_at, Batch.id, Detection.row)
+    )
+    rows = list(session.execute(query).all())
+    batch_ids = selection.get("batch_ids")
+    if batch_ids:  # the order the caller listed them in
+        rank = {str(b): k for k, b in enumerate(batch_ids)}
+        rows.sort(key=lambda r: rank[str(r[6])])  # stable: keeps the row order within a batch
+    n = len(rows)
+    columns = list(zip(*rows, strict=True)) if rows else [()] * 7
+    detection_ids = np.array(columns[4], dtype=object).reshape(n)
+    batch_of = np.array([str(b) for b in columns[6]], dtype=object).reshape(n)
+    if n and np.unique(batch_of).size > 1 and np.unique(detection_ids.astype(str)).size < n:
+        detection_ids = np.array(
+            [f"{b}:{d}" for b, d in zip(batch_of, detection_ids, strict=True)], dtype=object
+        )
+    return Detections(
+        position=np.array(columns[0], dtype=np.float64).reshape(n),
+        velocity=np.array(columns[1], dtype=np.float64).reshape(n),
+        timestamp=np.array(columns[2], dtype=np.float64).reshape(n),
+        sensor_id=np.array(columns[3], dtype=object).reshape(n),
+        detection_id=detection_ids,
+        target=np.array(columns[5], dtype=object).reshape(n),
+    )
+
+
+def _selects(deployment_id: uuid.UUID, selection: dict[str, Any]) -> Any:
+    condition = Detection.deployment_id == deployment_id
+    if selection.get("batch_ids"):
+        return condition & Detection.batch_id.in_(
+            [uuid.UUID(str(b)) for b in selection["batch_ids"]]
+        )
+    if selection.get("start") is not None:
+        condition &= Detection.timestamp >= float(selection["start"])
+    if selection.get("end") is not None:
+        condition &= Detection.timestamp < float(selection["end"])
+    return condition
+
+
+def get_job(session: Session, *, job_id: uuid.UUID) -> Job | None:
+    """The job, or None."""
+    return session.get(Job, job_id)
+
+
+def list_jobs(
+    session: Session, *, deployment_id: uuid.UUID | None, limit: int, offset: int
+) -> Sequence[Job]:
+    """Jobs, newest first, optionally of one deployment."""
+    query = select(Job).order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)
+    if deployment_id is not None:
+        query = query.where(Job.deployment_id == deployment_id)
+    return session.scalars(query).all()
+
+
+def get_job_result(session: Session, *, job_id: uuid.UUID) -> JobResult | None:
+    """A succeeded job's stored result, or None."""
+    return session.get(JobResult, job_id)
+
+
+def count_jobs_by_state(session: Session) -> dict[str, int]:
+    """Number of jobs in each state (every state present, zero included)."""
+    counts = dict(session.execute(select(Job.state, func.count()).group_by(Job.state)).all())
+    return {state.value: int(counts.get(state.value, 0)) for state in JobState}
+
+
+def job_duration_histogram(
+    session: Session, *, buckets: Sequence[float]
+) -> tuple[list[int], int, float]:
+    """Cumulative counts of succeeded-job durations per upper bound, their count and sum."""
+    finished = Job.duration_seconds.is_not(None)
+    columns = [func.count().filter(finished & (Job.duration_seconds <= b)) for b in buckets]
+    row = session.execute(
+        select(*columns, func.count().filter(finished), func.sum(Job.duration_seconds))
+    ).one()
+    values = list(row)
+    return [int(v or 0) for v in values[:-2]], int(values[-2] or 0), float(values[-1] or 0.0)

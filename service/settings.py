@@ -1,0 +1,78 @@
+"""Service configuration, read only from ROADLINK_* environment variables.
+
+The defaults run on a laptop with nothing else installed: an SQLite file in the working directory,
+the API on 127.0.0.1:8000 and one worker per core.
+"""
+
+from __future__ import annotations
+
+import os
+
+from pydantic import Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+def _cores() -> int:
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
+
+
+class Settings(BaseSettings):
+    """Everything the API and the workers can be told; each field is ROADLINK_<NAME>."""
+
+    model_config = SettingsConfigDict(env_prefix="ROADLINK_", extra="ignore", frozen=True)
+
+    database_url: str = Field(
+        default="sqlite:///./roadlink.db",
+        description="SQLAlchemy URL. sqlite:///path (embedded default) or "
+        "postgresql+psycopg://user:password@host:port/database.",
+    )
+    host: str = Field(default="127.0.0.1", description="Address the API listens on.")
+    port: int = Field(default=8000, ge=0, le=65535, description="Port the API listens on.")
+    workers: int = Field(
+        default_factory=_cores, ge=0, description="Worker processes `roadlink serve` starts."
+    )
+    lease_seconds: float = Field(
+        default=30.0,
+        gt=0,
+        description="How long a claimed job stays a worker's without a heartbeat before it is "
+        "rescued and run again.",
+    )
+    heartbeat_seconds: float = Field(
+        default=2.0, gt=0, description="How often a worker renews its lease and reports progress."
+    )
+    poll_seconds: float = Field(
+        default=0.25,
+        gt=0,
+        description="How often an idle worker looks for work when no notification wakes it.",
+    )
+    max_attempts: int = Field(
+        default=3,
+        ge=1,
+        description="Runs a job gets (a crash or lost lease uses one) before it fails.",
+    )
+    retry_backoff_seconds: float = Field(
+        default=1.0,
+        ge=0,
+        description="Delay before a crashed job is retried (doubles per attempt).",
+    )
+    max_body_bytes: int = Field(
+        default=64 * 1024 * 1024, gt=0, description="Largest request body accepted (413 beyond)."
+    )
+    max_wait_seconds: float = Field(
+        default=60.0, ge=0, description="Longest `?wait=` a result request may ask for."
+    )
+    log_level: str = Field(default="info", description="Log level of the API and the workers.")
+
+    @model_validator(mode="after")
+    def _heartbeat_within_lease(self) -> Settings:
+        if self.heartbeat_seconds >= self.lease_seconds:
+            raise ValueError(
+                "ROADLINK_HEARTBEAT_SECONDS must be shorter than ROADLINK_LEASE_SECONDS, "
+                "or every running job would lose its lease"
+            )
+        return self
+
+    @property
+    def is_postgres(self) -> bool:
+        """True when the database is PostgreSQL (claims skip locked rows, wake-ups by NOTIFY)."""
+        return self.database_url.startswith("postgresql")

@@ -1,0 +1,182 @@
+"""Jobs through the API: selection by batch, batches or time window; status, result (JSON and
+CSV, waiting), cancellation; the same numbers as the CLI."""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+from typer.testing import CliRunner
+
+from service.association.associators import DEFAULT_ASSOCIATOR
+from service.cli import app as cli
+from service.queue.worker import Worker
+from tests.api.conftest import assert_problem
+
+
+@pytest.fixture
+def running_worker(worker: Worker) -> Iterator[Worker]:
+    """A worker draining the queue in the background of the test."""
+    thread = threading.Thread(target=worker.run)
+    thread.start()
+    yield worker
+    worker.stopping.set()
+    thread.join(10)
+
+
+def _post_csv(client: TestClient, deployment_id: str, text: str, **params: str) -> dict[str, Any]:
+    response = client.post(
+        f"/v1/deployments/{deployment_id}/batches",
+        content=text,
+        headers={"content-type": "text/csv"},
+        params=params,
+    )
+    assert response.status_code == 201, response.text
+    return dict(response.json())
+
+
+@pytest.mark.parametrize(
+    ("associator", "params"),
+    [("kmeans++", {}), ("kmeans", {"seed": 3, "n_init": 2}), ("svm-quadratic", {"folds": 3})],
+)
+def test_the_service_computes_what_the_cli_computes(
+    client: TestClient,
+    worker: Worker,
+    deployment: dict[str, Any],
+    paper_csv: str,
+    tmp_path: Path,
+    associator: str,
+    params: dict[str, Any],
+) -> None:
+    batch = _post_csv(client, deployment["id"], paper_csv)
+    created = client.post(
+        "/v1/jobs", json={"batch_id": batch["id"], "associator": associator, "params": params}
+    )
+    assert created.status_code == 202, created.text
+    assert worker.run_once()
+    job_id = created.json()["id"]
+    served = client.get(f"/v1/jobs/{job_id}/result")
+    assert served.status_code == 200 and served.headers["content-type"] == "application/json"
+
+    path = tmp_path / "batch.csv"
+    path.write_text(paper_csv)
+    args = ["associate", str(path), "--associator", associator]
+    args += [f"--param={k}={v}" for k, v in params.items()]
+    printed = CliRunner().invoke(cli, [*args, "--json"])
+    assert printed.exit_code == 0, printed.output
+    assert served.json() == json.loads(printed.stdout)
+    assert served.json()["metrics"]["accuracy"] > 0  # labelled: scored
+
+    matrix = client.get(f"/v1/jobs/{job_id}/result", params={"format": "csv"})
+    assert matrix.headers["content-type"].startswith("text/csv")
+    printed = CliRunner().invoke(cli, [*args, "--csv"])
+    assert matrix.text == printed.stdout
+
+
+def test_status_progress_and_409_until_finished(
+    client: TestClient, worker: Worker, deployment: dict[str, Any], paper_csv: str
+) -> None:
+    batch = _post_csv(client, deployment["id"], paper_csv, associator=DEFAULT_ASSOCIATOR)
+    job = client.get(f"/v1/jobs/{batch['job']['id']}").json()
+    assert (job["state"], job["progress"], job["attempts"]) == ("queued", 0.0, 0)
+    problem = assert_problem(client.get(f"/v1/jobs/{job['id']}/result"), 409)
+    assert "queued" in problem["detail"] and "wait" in problem["detail"]
+    assert worker.run_once()
+    job = client.get(f"/v1/jobs/{job['id']}").json()
+    assert (job["state"], job["progress"], job["attempts"], job["n_detections"]) == (
+        "succeeded",
+        1.0,
+        1,
+        100,
+    )
+    assert job["duration_seconds"] > 0 and job["finished_at"] >= job["started_at"]
+    assert job in client.get("/v1/jobs", params={"deployment_id": deployment["id"]}).json()
+
+
+def test_wait_returns_the_result_once_the_worker_finishes(
+    client: TestClient, running_worker: Worker, deployment: dict[str, Any], paper_csv: str
+) -> None:
+    batch = _post_csv(client, deployment["id"], paper_csv, associator=DEFAULT_ASSOCIATOR)
+    result = client.get(f"/v1/jobs/{batch['job']['id']}/result", params={"wait": 10})
+    assert result.status_code == 200, result.text
+    assert result.json()["n_targets"] == 10 and result.json()["n_detections"] == 100
+
+
+def test_a_job_over_several_batches_or_a_time_window(
+    client: TestClient, worker: Worker, deployment: dict[str, Any]
+) -> None:
+    # One gateway per sensor: each vehicle's two detections arrive in different batches.
+    first = _post_csv(client, deployment["id"], "position,velocity,timestamp\n0,30,1\n0,40,10\n")
+    second = _post_csv(
+        client, deployment["id"], "position,velocity,timestamp\n100,30,4.3\n100,40,12.5\n"
+    )
+    by_batches = client.post(
+        "/v1/jobs",
+        json={"batch_ids": [first["id"], second["id"]], "params": {"n_targets": 2}},
+    )
+    window = client.post(
+        "/v1/jobs",
+        json={"deployment_id": deployment["id"], "start": 0, "end": 12, "params": {"n_targets": 2}},
+    )
+    assert by_batches.status_code == window.status_code == 202
+    assert worker.run_once() and worker.run_once()
+    both = client.get(f"/v1/jobs/{by_batches.json()['id']}/result").json()
+    assert both["n_detections"] == 4 and both["n_targets"] == 2
+    assert [len(t["detections"]) for t in both["targets"]] == [2, 2]
+    assert both["metrics"] is None  # unlabelled
+    ids = {d["detection_id"] for t in both["targets"] for d in t["detections"]}
+    assert {i.split(":")[0] for i in ids} == {first["id"], second["id"]}  # qualified: d1 twice
+    windowed = client.get(f"/v1/jobs/{window.json()['id']}/result").json()
+    assert windowed["n_detections"] == 3  # 12.5 is outside [0, 12)
+
+
+def test_job_requests_that_cannot_run(
+    client: TestClient, deployment: dict[str, Any], paper_csv: str
+) -> None:
+    batch = _post_csv(client, deployment["id"], paper_csv)
+    problem = assert_problem(client.post("/v1/jobs", json={"associator": "kmeans"}), 422)
+    assert "exactly one of" in problem["detail"]
+    problem = assert_problem(
+        client.post("/v1/jobs", json={"deployment_id": deployment["id"], "start": 5, "end": 5}), 422
+    )
+    assert "empty" in problem["detail"]
+    problem = assert_problem(
+        client.post("/v1/jobs", json={"deployment_id": deployment["id"], "start": 1e6}), 422
+    )
+    assert "no detections" in problem["detail"]
+    problem = assert_problem(
+        client.post("/v1/jobs", json={"batch_ids": [batch["id"], deployment["id"]]}), 422
+    )
+    assert problem["errors"][0]["field"] == "batch_ids.1"
+    problem = assert_problem(
+        client.post("/v1/jobs", json={"batch_id": batch["id"], "params": {"colour": 1}}), 422
+    )
+    assert "colour" in problem["detail"]
+    one_sensor = _post_csv(client, deployment["id"], "position,velocity,timestamp\n0,30,1\n")
+    problem = assert_problem(client.post("/v1/jobs", json={"batch_id": one_sensor["id"]}), 422)
+    assert "one sensor position" in problem["detail"]
+    assert_problem(client.get("/v1/jobs/00000000-0000-0000-0000-000000000000"), 404)
+    assert_problem(client.get("/v1/jobs/not-a-uuid"), 422)
+
+
+def test_cancel(
+    client: TestClient, worker: Worker, deployment: dict[str, Any], paper_csv: str
+) -> None:
+    batch = _post_csv(client, deployment["id"], paper_csv, associator="kmeans")
+    job_id = batch["job"]["id"]
+    cancelled = client.post(f"/v1/jobs/{job_id}/cancel")
+    assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled"
+    assert client.post(f"/v1/jobs/{job_id}/cancel").json()["state"] == "cancelled"
+    assert not worker.run_once()  # nothing left to run
+    problem = assert_problem(client.get(f"/v1/jobs/{job_id}/result"), 409)
+    assert "cancelled" in problem["detail"]
+
+    done = client.post("/v1/jobs", json={"batch_id": batch["id"]}).json()
+    assert worker.run_once()
+    problem = assert_problem(client.post(f"/v1/jobs/{done['id']}/cancel"), 409)
+    assert "succeeded" in problem["detail"]

@@ -1,0 +1,176 @@
+"""Against a real server: `roadlink serve` started by the test on a free loopback port, with a
+real SQLite file and a worker process; driven by plain HTTP and by a client generated from the
+committed OpenAPI document."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+
+from service.association import associate
+from service.association.csvio import read_detections_csv, write_detections_csv
+from service.simulation import preset, simulate
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parents[2]
+MAX_BODY_BYTES = 100_000
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """`roadlink serve --workers 1` on a fresh SQLite file (it migrates the file itself)."""
+    directory = tmp_path_factory.mktemp("live")
+    port = _free_port()
+    env = {
+        **os.environ,
+        "ROADLINK_DATABASE_URL": f"sqlite:///{directory / 'roadlink.db'}",
+        "ROADLINK_POLL_SECONDS": "0.05",
+        "ROADLINK_MAX_BODY_BYTES": str(MAX_BODY_BYTES),
+        "ROADLINK_LOG_LEVEL": "warning",
+    }
+    log = (directory / "serve.log").open("w")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", "1"],
+        cwd=directory,
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            assert process.poll() is None, (directory / "serve.log").read_text()
+            try:
+                if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            assert time.monotonic() < deadline, "the server did not become ready"
+            time.sleep(0.1)
+        yield url
+    finally:
+        process.send_signal(signal.SIGINT)  # as Ctrl-C: the API and its workers stop
+        try:
+            process.wait(20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+        log.close()
+
+
+def test_a_paper_sized_batch_over_http(server: str) -> None:
+    detections = simulate(preset("large"), seed=21).detections
+    text = write_detections_csv(detections)
+    with httpx.Client(base_url=server, timeout=30) as http:
+        deployment = http.post("/v1/deployments", json={"name": "live"}).json()
+        batch = http.post(
+            f"/v1/deployments/{deployment['id']}/batches",
+            content=text,
+            headers={"content-type": "text/csv"},
+            params={"associator": "kmeans++"},
+        )
+        assert batch.status_code == 201, batch.text
+        result = http.get(f"/v1/jobs/{batch.json()['job']['id']}/result", params={"wait": 20})
+        assert result.status_code == 200, result.text
+        expected = associate(read_detections_csv(text), "kmeans++").to_dict()
+        assert result.json() == json.loads(json.dumps(expected))
+
+        too_big = http.post(
+            f"/v1/deployments/{deployment['id']}/batches",
+            content=b"x" * (MAX_BODY_BYTES + 1),
+            headers={"content-type": "text/csv"},
+        )
+        assert too_big.status_code == 413
+        assert str(MAX_BODY_BYTES) in too_big.json()["detail"]
+        metrics = http.get("/metrics").text
+        assert 'roadlink_jobs{state="succeeded"} 1.0' in metrics
+
+
+def test_a_generated_client_drives_the_server(server: str, tmp_path: Path) -> None:
+    config = tmp_path / "config.yaml"
+    config.write_text("package_name_override: roadlink_client\npost_hooks: []\n")
+    generated = subprocess.run(
+        [
+            str(Path(sys.executable).parent / "openapi-python-client"),
+            "generate",
+            "--path",
+            str(REPO / "openapi" / "openapi.json"),
+            "--meta",
+            "none",
+            "--output-path",
+            str(tmp_path / "roadlink_client"),
+            "--config",
+            str(config),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert generated.returncode == 0, generated.stdout + generated.stderr
+    sys.path.insert(0, str(tmp_path))
+    try:
+        client_module = importlib.import_module("roadlink_client")
+        from roadlink_client.api.batches import batches_create
+        from roadlink_client.api.deployments import deployments_create
+        from roadlink_client.api.jobs import jobs_create, jobs_get, jobs_get_result
+        from roadlink_client.models import (
+            AssociateRequest,
+            BatchCreate,
+            DeploymentCreate,
+            DetectionIn,
+            JobCreate,
+        )
+
+        client = client_module.Client(base_url=server, timeout=httpx.Timeout(30))
+        deployment = deployments_create.sync(
+            client=client, body=DeploymentCreate(name="generated client")
+        )
+        detections = simulate(preset("medium"), seed=8).detections
+        rows = [
+            DetectionIn(
+                position=float(detections.position[i]),
+                velocity=float(detections.velocity[i]),
+                timestamp=float(detections.timestamp[i]),
+                sensor_id=str(detections.sensor_id[i]),
+                detection_id=str(detections.detection_id[i]),
+                target=str(detections.target[i]),
+            )
+            for i in range(len(detections))
+        ]
+        batch = batches_create.sync(deployment.id, client=client, body=BatchCreate(detections=rows))
+        assert batch.n_detections == len(detections)
+        job = jobs_create.sync(
+            client=client,
+            body=JobCreate(
+                batch_id=batch.id, associator="kmeans", params=AssociateRequest().params
+            ),
+        )
+        result = jobs_get_result.sync(job.id, client=client, wait=20.0)
+        assert result.n_detections == len(detections)
+        assert result.metrics.accuracy == pytest.approx(
+            associate(detections, "kmeans").metrics.accuracy  # type: ignore[union-attr]
+        )
+        assert jobs_get.sync(job.id, client=client).state.value == "succeeded"
+    finally:
+        sys.path.remove(str(tmp_path))
+        for name in [m for m in sys.modules if m.startswith("roadlink_client")]:
+            del sys.modules[name]

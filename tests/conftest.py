@@ -1,0 +1,133 @@
+"""Fixtures for the service tests: a migrated database on SQLite and on PostgreSQL, an app, a
+worker. PostgreSQL tests are skipped, with the reason shown, when 127.0.0.1:5432 does not answer;
+each test run creates and drops its own uniquely named database there."""
+
+from __future__ import annotations
+
+import socket
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine, text
+
+from service.api import create_app
+from service.db.engine import make_engine
+from service.db.migrate import upgrade_to_head
+from service.queue.worker import Worker
+from service.settings import Settings
+
+POSTGRES_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
+TABLES_CHILD_FIRST = ("job_result", "detection", "batch", "job", "deployment")
+
+
+def postgres_answers() -> bool:
+    """True when something listens on the PostgreSQL port."""
+    try:
+        with socket.create_connection(("127.0.0.1", 5432), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
+def create_postgres_database() -> str:
+    """A new, uniquely named database on the local server; its URL."""
+    name = f"roadlink_test_{uuid.uuid4().hex[:12]}"
+    admin = make_engine(POSTGRES_ADMIN_URL, isolation_level="AUTOCOMMIT")
+    with admin.connect() as connection:
+        connection.execute(text(f'CREATE DATABASE "{name}"'))
+    admin.dispose()
+    return POSTGRES_ADMIN_URL.rsplit("/", 1)[0] + "/" + name
+
+
+def drop_postgres_database(url: str) -> None:
+    """Drop a database made by create_postgres_database (even with connections left open)."""
+    name = url.rsplit("/", 1)[1]
+    admin = make_engine(POSTGRES_ADMIN_URL, isolation_level="AUTOCOMMIT")
+    with admin.connect() as connection:
+        connection.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+    admin.dispose()
+
+
+def require_postgres() -> None:
+    """Skip, saying why, when no PostgreSQL server answers."""
+    if not postgres_answers():
+        pytest.skip("PostgreSQL tests skipped: nothing answers on 127.0.0.1:5432")
+
+
+@pytest.fixture
+def empty_database_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+    """A URL of an empty, never migrated database of the backend in `request.param`."""
+    if request.param == "postgresql":
+        require_postgres()
+        url = create_postgres_database()
+        yield url
+        drop_postgres_database(url)
+    else:
+        yield f"sqlite:///{tmp_path / 'empty.db'}"
+
+
+BACKENDS = ["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)]
+
+
+@pytest.fixture(scope="session", params=BACKENDS)
+def database_url(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[str]:
+    """A migrated database, one per backend for the whole run."""
+    if request.param == "postgresql":
+        require_postgres()
+        url = create_postgres_database()
+        upgrade_to_head(url)
+        yield url
+        drop_postgres_database(url)
+    else:
+        url = f"sqlite:///{tmp_path_factory.mktemp('db') / 'roadlink.db'}"
+        upgrade_to_head(url)
+        yield url
+
+
+@pytest.fixture(scope="session")
+def shared_engine(database_url: str) -> Iterator[Engine]:
+    engine = make_engine(database_url)
+    yield engine
+    engine.dispose()
+
+
+@pytest.fixture
+def engine(shared_engine: Engine) -> Engine:
+    """The migrated database's engine, emptied before each test."""
+    with shared_engine.begin() as connection:
+        for table in TABLES_CHILD_FIRST:
+            connection.execute(text(f"DELETE FROM {table}"))
+    return shared_engine
+
+
+@pytest.fixture
+def settings(database_url: str) -> Settings:
+    """Settings for the test database, with short leases so expiry tests are quick."""
+    return Settings(
+        database_url=database_url,
+        workers=1,
+        lease_seconds=2.0,
+        heartbeat_seconds=0.2,
+        poll_seconds=0.05,
+        retry_backoff_seconds=0.0,
+        max_body_bytes=2_000_000,
+        max_wait_seconds=10.0,
+    )
+
+
+@pytest.fixture
+def client(settings: Settings, engine: Engine) -> Iterator[TestClient]:
+    """The API in process, on the test database."""
+    with TestClient(create_app(settings, engine=engine)) as test_client:
+        yield test_client
+
+
+@pytest.fixture
+def worker(settings: Settings, engine: Engine) -> Worker:
+    """A worker on the test database, run step by step (`run_once`) by the test."""
+    return Worker(settings, engine=engine)

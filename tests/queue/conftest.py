@@ -1,0 +1,60 @@
+"""Helpers for queue tests: a deployment with one stored batch, and jobs over it."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Callable
+
+import pytest
+from sqlalchemy import Engine
+from sqlalchemy.orm import Session, sessionmaker
+
+from service.association.detections import Detections
+from service.db import repository
+from service.db.engine import make_session_factory, transaction
+from service.queue import enqueue_job
+from service.simulation import preset, simulate
+
+EnqueueJob = Callable[..., uuid.UUID]
+
+
+@pytest.fixture
+def sessions(engine: Engine) -> sessionmaker[Session]:
+    return make_session_factory(engine)
+
+
+@pytest.fixture
+def paper_batch() -> Detections:
+    """A paper-sized batch: the large preset, 10 targets x 10 sensors, labelled."""
+    return simulate(preset("large"), seed=11).detections
+
+
+@pytest.fixture
+def enqueue(sessions: sessionmaker[Session], paper_batch: Detections) -> EnqueueJob:
+    """Enqueue a job over a freshly stored copy of the paper batch; returns the job id."""
+
+    def enqueue_over_batch(
+        associator: str = "kmeans++",
+        params: dict[str, object] | None = None,
+        max_attempts: int = 3,
+        detections: Detections | None = None,
+    ) -> uuid.UUID:
+        with transaction(sessions) as session:
+            deployment = repository.create_deployment(session, name="road", sensors=None)
+            batch = repository.insert_batch(
+                session,
+                deployment_id=deployment.id,
+                detections=paper_batch if detections is None else detections,
+                source="simulation",
+            )
+            job = enqueue_job(
+                session,
+                deployment_id=deployment.id,
+                selection={"batch_ids": [str(batch.id)]},
+                associator=associator,
+                params=params or {},
+                max_attempts=max_attempts,
+            )
+        return job.id
+
+    return enqueue_over_batch
