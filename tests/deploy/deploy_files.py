@@ -99,7 +99,7 @@ def arg_default(instructions: list[Instruction], name: str) -> str:
 
 
 def read_compose(path: Path = COMPOSE_FILE) -> dict[str, Any]:
-    """compose.yaml as Compose sees it before interpolation (YAML anchors and merge keys applied)."""
+    """compose.yaml as Compose reads it before interpolation: anchors and merge keys applied."""
     loaded = yaml.safe_load(path.read_text())
     assert isinstance(loaded, dict)
     return loaded
@@ -128,4 +128,12 @@ def cli_commands() -> set[str]:
 def commands_in_help(help_text: str) -> set[str]:
     """Sub-command names in typer's help screen (rich table or plain), e.g. {"serve", "worker"}."""
     _, _, commands = help_text.partition("Commands")
-    return set(re.findall(r"^[^\w\n]*([a-z][\w-]*)\s", commands, re.MULTILINE))
+    # A command name starts a row at the table's left edge; wrapped descriptions are indented more.
+    rows = [
+        (len(match.group(1)), match.group(2))
+        for match in re.finditer(r"^[^\w\s\n]*( *)([a-z][\w-]*)", commands, re.MULTILINE)
+    ]
+    if not rows:
+        return set()
+    edge = min(indent for indent, _ in rows)
+    return {name for indent, name in rows if indent == edge}

