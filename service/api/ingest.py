@@ -1,14 +1,12 @@
 """Turning a batch upload (JSON or CSV) into validated detections, or a problem naming the row.
 
 The body is parsed once and validated once, by the core (`Detections.from_columns`,
-`read_detections_csv`): the API adds nothing to what a valid detection is, except a deployment's
+`read_csv_columns`): the API adds nothing to what a valid detection is, except a deployment's
 declared sensors.
 """
 
 from __future__ import annotations
 
-import csv
-import io
 from collections.abc import Sequence
 from typing import Any
 
@@ -18,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from service.api.errors import ApiProblem, ProblemItem, problems_from_detections
 from service.api.schemas import AssociateRequest
-from service.association.csvio import read_detections_csv
+from service.association.csvio import read_csv_columns
 from service.association.detections import DetectionError, Detections, Problem
 
 DETECTION_FIELDS = ("position", "velocity", "timestamp", "sensor_id", "detection_id", "target")
@@ -88,72 +86,26 @@ def parse_csv_batch(body: bytes, sensors: list[dict[str, Any]] | None) -> Detect
     except UnicodeDecodeError as exc:
         raise ApiProblem(400, f"the CSV is not UTF-8 text: {exc}") from None
     try:
-        detections = read_detections_csv(text)
+        columns = read_csv_columns(text)
     except DetectionError as exc:
-        if not _only_one_position(exc):
-            raise ApiProblem(
-                422, _count(exc.problems), errors=problems_from_detections(exc.problems)
-            ) from None
-    else:
-        if sensors is None:
-            return detections
-    # The file is well-formed (the core read it); the declared sensors are checked against the
-    # sensor ids as written in it, not as the core generated them from position rank.
-    columns = _csv_columns(text)
+        raise ApiProblem(
+            422, _count(exc.problems), errors=problems_from_detections(exc.problems)
+        ) from None
+    # Declared sensors are checked against the sensor ids as written in the file, not as the
+    # core would generate them from position rank.
     return validate_columns(_fill_declared_sensors(columns, sensors, json_body=False), None)
 
 
 def validate_columns(columns: dict[str, Any], json_prefix: str | None) -> Detections:
-    """The core's validation of raw columns, as problem details.
-
-    A batch may hold a single sensor's detections (one gateway per sensor is common; a job joins
-    the batches), although the core needs two sensor positions to associate. When that is the
-    only objection, the batch is validated with one extra detection at another position, which
-    is then dropped: every real detection still passes the core's checks, and the job checks
-    the two positions when it runs.
-    """
+    """The core's validation of raw columns, as problem details."""
     try:
         return Detections.from_columns(**columns)
     except DetectionError as exc:
-        if not _only_one_position(exc):
-            raise ApiProblem(
-                422,
-                _count(exc.problems),
-                errors=problems_from_detections(exc.problems, json_prefix=json_prefix),
-            ) from None
-    n = len(columns["position"])
-    only = _as_float(columns["position"][0])
-    padded: dict[str, Any] = {
-        "position": [*columns["position"], (only or 0.0) + 1.0],
-        "velocity": [*columns["velocity"], 1.0],
-        "timestamp": [*columns["timestamp"], 0.0],
-    }
-    for name in ("sensor_id", "detection_id"):
-        values = columns.get(name)
-        # An id no real input holds (it starts with a NUL character), so it cannot collide.
-        padded[name] = None if values is None else [*values, "\0padding"]
-    target = columns.get("target")
-    padded["target"] = None if target is None else [*target, None]
-    return Detections.from_columns(**padded).take(np.arange(n))
-
-
-def _only_one_position(error: DetectionError) -> bool:
-    return [(p.row, p.field) for p in error.problems] == [(None, "position")] and (
-        "two distinct sensor positions" in error.problems[0].message
-    )
-
-
-def _csv_columns(text: str) -> dict[str, Any]:
-    """The columns of a CSV the core has already read without objection (same conventions:
-    lower-cased header, blank lines skipped, empty cells absent)."""
-    reader = csv.reader(io.StringIO(text.lstrip("\ufeff")))
-    header = [h.strip().lower() for h in next(reader)]
-    rows = [row for row in reader if any(cell.strip() for cell in row)]
-    columns: dict[str, Any] = dict.fromkeys(DETECTION_FIELDS)
-    for k, name in enumerate(header):
-        if name in DETECTION_FIELDS:
-            columns[name] = [row[k].strip() or None for row in rows]
-    return columns
+        raise ApiProblem(
+            422,
+            _count(exc.problems),
+            errors=problems_from_detections(exc.problems, json_prefix=json_prefix),
+        ) from None
 
 
 def _fill_declared_sensors(

@@ -19,6 +19,23 @@ def read_detections_csv(text: str) -> Detections:
 
     Rows are numbered from 1 at the first data row (line 2 of the file).
     """
+    columns = read_csv_columns(text)
+    return Detections.from_columns(
+        columns["position"] or [],
+        columns["velocity"] or [],
+        columns["timestamp"] or [],
+        sensor_id=columns["sensor_id"],
+        detection_id=columns["detection_id"],
+        target=columns["target"],
+    )
+
+
+def read_csv_columns(text: str) -> dict[str, list[str | None] | None]:
+    """The raw columns of a detection CSV, by name (None for an absent optional column).
+
+    Checks the file's structure (header, field counts, quoting) but not the values: that is
+    `Detections.from_columns`'s job. Empty cells become None.
+    """
     reader = csv.reader(io.StringIO(text.lstrip("\ufeff")), strict=True)
     header = next(reader, None)
     if header is None or not any(h.strip() for h in header):
@@ -53,19 +70,12 @@ def read_detections_csv(text: str) -> Detections:
     if not rows:
         raise DetectionError([Problem(None, None, "the CSV has a header but no detections")])
     columns = np.array(rows, dtype=object).T
-    present = {name: columns[i].tolist() for i, name in enumerate(names) if name}
-    return Detections.from_columns(
-        _numbers(present["position"]),
-        _numbers(present["velocity"]),
-        _numbers(present["timestamp"]),
-        sensor_id=present.get("sensor_id"),
-        detection_id=present.get("detection_id"),
-        target=present.get("target"),
-    )
+    present = {name: _cells(columns[i].tolist()) for i, name in enumerate(names) if name}
+    return {name: present.get(name) for name in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS)}
 
 
-def _numbers(cells: list[str]) -> list[str | None]:
-    """Empty cells become None so that validation reports them as missing numbers."""
+def _cells(cells: list[str]) -> list[str | None]:
+    """Stripped cells; empty ones become None (a missing number, an unlabelled target)."""
     return [cell.strip() or None for cell in cells]
 
 

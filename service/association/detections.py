@@ -108,10 +108,8 @@ class Detections:
         labels = _text_column(n, target)
         if problems:
             raise DetectionError(problems)
-        if n and np.unique(pos).size < 2:
-            raise DetectionError(
-                [Problem(None, "position", "at least two distinct sensor positions are needed")]
-            )
+        # One sensor's detections are valid (a gateway per sensor is common); association needs
+        # two sensor positions, and `associate` says so.
         return cls(pos, vel, ts, sensors, det_ids, labels)
 
     def __len__(self) -> int:

@@ -44,6 +44,10 @@ def associate(
     checked = parse_params(associator, params)
     if len(detections) == 0:
         raise AssociationError("there are no detections to associate")
+    if detections.sensor_positions.size < 2:
+        raise AssociationError(
+            "the detections all come from one sensor position; association needs at least two"
+        )
     visible = detections if cls.needs_labels else detections.without_labels()
     groups = cls(checked).group(visible, progress)
     return build_result(detections, groups, associator, checked.model_dump())

@@ -15,10 +15,9 @@ import time
 import traceback
 import uuid
 
-import numpy as np
 from sqlalchemy import Engine
 
-from service.association import DetectionError, Problem, associate
+from service.association import DetectionError, associate
 from service.association.associators import AssociationError
 from service.db.engine import make_engine, make_session_factory, transaction
 from service.db.repository import load_detections
@@ -112,10 +111,6 @@ class Worker:
             with transaction(self.sessions) as session:
                 detections = load_detections(
                     session, deployment_id=job.deployment_id, selection=job.selection
-                )
-            if np.unique(detections.position).size < 2:  # a window may hold one sensor only
-                raise DetectionError(
-                    [Problem(None, "position", "at least two distinct sensor positions are needed")]
                 )
             result = associate(detections, job.associator, job.params, progress=report)
         except JobInterrupted:

@@ -3,6 +3,8 @@ import math
 import numpy as np
 import pytest
 
+from service.association import associate
+from service.association.associators import AssociationError
 from service.association.detections import DetectionError, Detections, concatenate
 
 
@@ -63,9 +65,11 @@ def test_all_problems_are_reported_at_once():
     assert set(problems_of(excinfo)) == {(1, "velocity"), (3, "velocity"), (2, "timestamp")}
 
 
-def test_needs_two_distinct_sensor_positions():
-    with pytest.raises(DetectionError, match="two distinct sensor positions"):
-        make(position=[5.0, 5.0, 5.0, 5.0])
+def test_one_sensors_detections_are_valid_but_cannot_be_associated():
+    one_sensor = make(position=[5.0, 5.0, 5.0, 5.0])
+    assert one_sensor.sensor_id.tolist() == ["S1"] * 4
+    with pytest.raises(AssociationError, match="one sensor position"):
+        associate(one_sensor, "kmeans")
 
 
 def test_one_sensor_id_cannot_have_two_positions():
