@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from service.association.associators.assignment import AssignmentAssociator
 from service.association.associators.base import (
     AssociationError,
     Associator,
@@ -14,6 +15,7 @@ from service.association.associators.svm import LinearSVMAssociator, QuadraticSV
 ASSOCIATORS: dict[str, type[Associator]] = {
     cls.name: cls
     for cls in (
+        AssignmentAssociator,
         KMeansAssociator,
         KMeansPlusPlusAssociator,
         LinearSVMAssociator,
@@ -21,7 +23,7 @@ ASSOCIATORS: dict[str, type[Associator]] = {
     )
 }
 
-DEFAULT_ASSOCIATOR = "kmeans++"
+DEFAULT_ASSOCIATOR = "assignment"
 
 
 def get_associator_class(name: str) -> type[Associator]:

@@ -1,0 +1,657 @@
+"""`assignment`: track building by sparse minimum-cost assignment, sensor after sensor.
+
+The paper clusters detections as independent points. They are not: a target passes each sensor
+once, in position order, and its speed changes little between neighbouring sensors. This
+associator uses that structure:
+
+1. Sensors are visited in road order. At each sensor the open tracks (whose last detection lies at
+   one of the previous `max_skip + 1` sensors, so a missed detection is bridged) are matched
+   one-to-one to the sensor's detections by minimum-cost bipartite assignment. The cost of a link
+   from detection a to detection b is a kinematic negative log-likelihood: the travel time
+   predicted from both ends' speeds, `dx * (1/v_a + 1/v_b) / 2`, scaled by the segment's learned
+   bias, against the observed one; plus a robust penalty on the speed change; plus a penalty for
+   each sensor skipped. A detection left unmatched starts a track (a birth), a track left
+   unmatched waits (a miss); links costlier than `gate_cost` are never made.
+2. Candidate pairs are gated in time (sorted times and `searchsorted`), so the work grows with the
+   number of detections, not its square, and each sensor's assignment is solved by the sparse
+   LAPJVsp algorithm with dummy birth / miss nodes.
+3. A fixed kinematic model breaks in congestion, so each segment's behaviour (travel-time bias and
+   spread, speed ratio and its spread) is learned robustly (median, MAD) from the links of the
+   confident tracks, and the detections are re-associated with it: a few EM-style rounds.
+4. Leftovers are repaired: a detection the sequential pass could not place (e.g. a vehicle almost
+   stopped at a sensor) joins a track that lacks that sensor when it fits between the track's
+   neighbouring detections; duplicated reports (the same passage reported twice) never start a
+   track of their own; tracks shorter than `min_track_length` are false alarms (-1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from pydantic import Field
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+
+from service.association.associators.base import Associator, AssociatorParams, Progress
+from service.association.detections import Detections, FloatArray, IntArray
+
+MIN_RELATIVE_SPREAD = 0.01
+REFINE_GATE_FACTOR = 2.0
+
+
+class AssignmentParams(AssociatorParams):
+    max_skip: int = Field(
+        default=2,
+        ge=0,
+        le=10,
+        description="Consecutive missed detections a track may bridge. Higher tolerates more "
+        "misses but lets a track jump further, over more candidates.",
+    )
+    gate_cost: float = Field(
+        default=16.0,
+        gt=0,
+        description="Largest cost of a link (a sum of squared standardised residuals, so 16 is "
+        "about four standard deviations). Lower leaves more detections as separate tracks; "
+        "higher links more boldly.",
+    )
+    miss_cost: float = Field(
+        default=4.0,
+        ge=0,
+        description="Extra cost per sensor skipped by a link: how much a consecutive link is "
+        "preferred to a link over a missed detection.",
+    )
+    travel_time_spread: float = Field(
+        default=0.1,
+        gt=0,
+        le=5,
+        description="Prior relative spread (std of log) of a travel time around its kinematic "
+        "prediction, before the segments' own spreads are learned.",
+    )
+    velocity_change_spread: float = Field(
+        default=0.1,
+        gt=0,
+        le=5,
+        description="Prior spread (std of log ratio) of the speed change between neighbouring "
+        "sensors, before it is learned per segment.",
+    )
+    velocity_change_weight: float = Field(
+        default=0.25,
+        ge=0,
+        le=10,
+        description="Weight of the speed-change penalty against the travel-time one. Speeds "
+        "fluctuate most when targets overtake, exactly where links are hardest, and the "
+        "travel-time term already uses both speeds; so speed continuity is a tie-breaker.",
+    )
+    preferred_speed_weight: float = Field(
+        default=1.0,
+        ge=0,
+        le=10,
+        description="Weight of the penalty on a speed far from the track's mean speed (relative "
+        "to each sensor's typical speed): drivers keep their own pace, so this separates "
+        "targets whose speeds cross while they overtake.",
+    )
+    preferred_speed_memory: float = Field(
+        default=3.0,
+        ge=1,
+        le=100,
+        description="Most detections a track's mean speed counts as independent: speed "
+        "fluctuations last several sensors, so a long track's mean is not proportionally surer. "
+        "Higher trusts a driver's pace more.",
+    )
+    velocity_change_ambiguity: float = Field(
+        default=0.5,
+        ge=0,
+        le=5,
+        description="How much an unexplained speed change widens the travel-time gate: where "
+        "between two sensors a target slowed down is unknown, so its travel time is too.",
+    )
+    velocity_floor: float = Field(
+        default=0.05,
+        gt=0,
+        le=1,
+        description="Speeds below this share of the median speed are raised to it before "
+        "predicting travel times (a target almost stopped at a sensor).",
+    )
+    timestamp_noise: float = Field(
+        default=0.02,
+        ge=0,
+        description="Timestamp measurement error (std, time units): the least spread of a "
+        "travel time, however short.",
+    )
+    em_rounds: int = Field(
+        default=3,
+        ge=0,
+        le=20,
+        description="Rounds of learning the segments' behaviour from the tracks and "
+        "re-associating with it (0 = the kinematic prior only).",
+    )
+    refine_sweeps: int = Field(
+        default=2,
+        ge=0,
+        le=10,
+        description="Sweeps over the sensor boundaries re-pairing track prefixes with track "
+        "suffixes, each seen whole (0 = keep the sequential pass's links).",
+    )
+    min_segment_samples: int = Field(
+        default=8,
+        ge=2,
+        description="Links a segment needs before its own model replaces the pooled one of "
+        "all segments.",
+    )
+    min_track_length: int = Field(
+        default=2,
+        ge=1,
+        description="Tracks with fewer detections are taken for false alarms (left unassigned).",
+    )
+    duplicate_window: float = Field(
+        default=0.5,
+        ge=0,
+        description="Two reports of one sensor at most this far apart in time (time units) with "
+        "near-equal speed may be one passage reported twice; only one of them joins a track.",
+    )
+    duplicate_velocity_tolerance: float = Field(
+        default=0.05,
+        ge=0,
+        le=1,
+        description="Largest relative speed difference of two reports taken as a duplicate.",
+    )
+
+
+@dataclass
+class SegmentModel:
+    """Learned behaviour of the road between sensor p and sensor p + span, for every p and span.
+
+    Arrays are indexed [p, span] (span 0 unused): log of the travel-time bias over the kinematic
+    prediction, its spread, mean log speed ratio, and its spread.
+    """
+
+    log_bias: FloatArray
+    time_spread: FloatArray
+    log_speed_ratio: FloatArray
+    speed_spread: FloatArray
+    preferred_speed_spread: float
+
+    @classmethod
+    def prior(cls, n_sensors: int, max_span: int, params: AssignmentParams) -> SegmentModel:
+        """The kinematic model alone: no bias, the prior spreads (speed spread growing with span)."""
+        shape = (n_sensors, max_span + 1)
+        span = np.arange(max_span + 1, dtype=np.float64)
+        return cls(
+            np.zeros(shape),
+            np.full(shape, params.travel_time_spread),
+            np.zeros(shape),
+            np.broadcast_to(
+                params.velocity_change_spread * np.sqrt(np.maximum(span, 1.0)), shape
+            ).copy(),
+            params.velocity_change_spread,
+        )
+
+
+@dataclass
+class Level:
+    """Mean relative speed of some track pieces, and how many detections each mean is over."""
+
+    mean: FloatArray
+    count: FloatArray
+
+
+@dataclass
+class TrackLevel:
+    """Per detection: mean relative speed of its track up to and including it, and how many
+    detections that mean is over."""
+
+    mean: FloatArray
+    count: FloatArray
+
+    @classmethod
+    def start(cls, s: Sensors) -> TrackLevel:
+        return cls(s.relative_speed.copy(), np.ones(s.relative_speed.size))
+
+    def extend(self, s: Sensors, a: IntArray, b: IntArray) -> None:
+        """Detection b continues the track that ends in detection a."""
+        count = self.count[a] + 1.0
+        self.mean[b] = self.mean[a] + (s.relative_speed[b] - self.mean[a]) / count
+        self.count[b] = count
+
+
+@dataclass
+class Sensors:
+    """Detections arranged by sensor in road order, times ascending within a sensor."""
+
+    positions: FloatArray  # distinct positions, ascending
+    order: IntArray  # detection indices sorted by (sensor, time)
+    start: IntArray  # order[start[k]:start[k+1]] are sensor k's detections
+    sensor: IntArray  # sensor index of every detection
+    time: FloatArray
+    speed: FloatArray  # floored
+    log_speed: FloatArray
+    relative_speed: FloatArray  # log speed minus the median log speed at its sensor
+
+    def members(self, k: int) -> IntArray:
+        return self.order[self.start[k] : self.start[k + 1]]
+
+
+def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
+    """Index the detections by sensor and time, with speeds floored (never divide by ~0)."""
+    positions, sensor = np.unique(detections.position, return_inverse=True)
+    sensor = sensor.astype(np.int64)
+    # Ties broken by speed, then input order, so a shuffled input gives the same grouping.
+    order = np.lexsort((detections.velocity, detections.timestamp, sensor)).astype(np.int64)
+    start = np.searchsorted(sensor[order], np.arange(positions.size + 1)).astype(np.int64)
+    floor = params.velocity_floor * float(np.median(detections.velocity))
+    speed = np.maximum(detections.velocity, floor)
+    log_speed = np.log(speed)
+    typical = np.array(
+        [np.median(log_speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]
+    )
+    return Sensors(
+        positions,
+        order,
+        start,
+        sensor,
+        detections.timestamp,
+        speed,
+        log_speed,
+        log_speed - typical[sensor],
+    )
+
+
+def huber(r: FloatArray, k: float = 2.0) -> FloatArray:
+    """Squared residual near zero, linear in the tails: a few wild speed changes stay possible."""
+    a = np.abs(r)
+    return np.where(a <= k, a * a, 2.0 * k * a - k * k)
+
+
+def link_cost(
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    a: IntArray,
+    b: IntArray,
+    before: Level,
+    after: Level,
+) -> FloatArray:
+    """Cost of linking detection a (earlier sensor) to detection b (later sensor), elementwise.
+
+    `before` is the mean relative speed (and its number of detections) of the track ending in a,
+    `after` that of the track starting with b (b alone, when linking sensor by sensor)."""
+    p, q = s.sensor[a], s.sensor[b]
+    span = q - p
+    dx = s.positions[q] - s.positions[p]
+    predicted = np.exp(model.log_bias[p, span]) * dx * 0.5 * (1.0 / s.speed[a] + 1.0 / s.speed[b])
+    ratio = s.log_speed[b] - s.log_speed[a] - model.log_speed_ratio[p, span]
+    rel = np.hypot(model.time_spread[p, span], params.velocity_change_ambiguity * ratio)
+    spread = np.hypot(rel * predicted, params.timestamp_noise * np.sqrt(2.0))
+    r_time = (s.time[b] - s.time[a] - predicted) / spread
+    r_speed = ratio / model.speed_spread[p, span]
+    # A driver keeps a preferred speed relative to the traffic around: compare b's speed, relative
+    # to its sensor's typical speed, with the mean of the track so far.
+    # Speed fluctuations are correlated over several sensors, so a mean over many detections is
+    # not as sure as 1/n would say: cap the counts.
+    memory = params.preferred_speed_memory
+    level_spread = model.preferred_speed_spread * np.sqrt(
+        1.0 / np.minimum(before.count, memory) + 1.0 / np.minimum(after.count, memory)
+    )
+    r_level = (after.mean - before.mean) / level_spread
+    return (
+        huber(r_time, 3.0)
+        + params.velocity_change_weight * huber(r_speed)
+        + params.preferred_speed_weight * huber(r_level)
+        + params.miss_cost * (span - 1)
+    )
+
+
+def time_window(
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    a: IntArray,
+    q: int,
+    speed_range: tuple[float, float],
+) -> tuple[FloatArray, FloatArray]:
+    """Earliest and latest passing time at sensor q of a target seen as detection a: a gate
+    wide enough for any speed at q within `speed_range`, at the gate's number of spreads."""
+    p = s.sensor[a]
+    span = q - p
+    dx = s.positions[q] - s.positions[p]
+    bias = np.exp(model.log_bias[p, span])
+    fast, slow = speed_range[1], speed_range[0]
+    lo_pred = bias * dx * 0.5 * (1.0 / s.speed[a] + 1.0 / fast)
+    hi_pred = bias * dx * 0.5 * (1.0 / s.speed[a] + 1.0 / slow)
+    reach = np.sqrt(params.gate_cost)
+    worst_ratio = np.maximum(
+        np.abs(np.log(fast) - s.log_speed[a] - model.log_speed_ratio[p, span]),
+        np.abs(np.log(slow) - s.log_speed[a] - model.log_speed_ratio[p, span]),
+    )
+    rel = np.hypot(model.time_spread[p, span], params.velocity_change_ambiguity * worst_ratio)
+    slack = reach * params.timestamp_noise * np.sqrt(2.0)
+    lo = s.time[a] + lo_pred * np.exp(-reach * rel) - slack
+    hi = s.time[a] + hi_pred * (1.0 + reach * rel) + slack
+    return lo, hi
+
+
+def gated_pairs(
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    a: IntArray,
+    q: int,
+) -> tuple[IntArray, IntArray]:
+    """Candidate (a, b) pairs, b at sensor q, whose passing time falls in a's window."""
+    members = s.members(q)
+    if members.size == 0 or a.size == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty
+    times = s.time[members]
+    speeds = s.speed[members]
+    lo, hi = time_window(s, model, params, a, q, (float(speeds.min()), float(speeds.max())))
+    first = np.searchsorted(times, lo, side="left")
+    last = np.searchsorted(times, hi, side="right")
+    count = np.maximum(last - first, 0)
+    total = int(count.sum())
+    pair_a = np.repeat(a, count)
+    offsets = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
+    pair_b = members[np.repeat(first, count) + offsets]
+    return pair_a, pair_b
+
+
+def match(left: IntArray, right: IntArray, cost: FloatArray, gate: float) -> tuple[IntArray, IntArray]:
+    """Minimum-cost one-to-one matching of the (left, right, cost) edges, every node free to stay
+    unmatched at cost gate / 2 (so an edge is taken only if it beats leaving both ends alone).
+
+    Sparse LAPJVsp on the graph augmented with one dummy node per real node: left l may match its
+    own dummy (stay alone), right r may match its own dummy, and dummies match each other along
+    every real edge so a full matching always exists.
+    """
+    keep = cost < gate
+    left, right, cost = left[keep], right[keep], cost[keep]
+    if left.size == 0:
+        return left, right
+    lu, li = np.unique(left, return_inverse=True)
+    ru, ri = np.unique(right, return_inverse=True)
+    n_l, n_r = lu.size, ru.size
+    half = gate / 2.0
+    # rows: real lefts [0, n_l), dummies of rights [n_l, n_l + n_r)
+    # cols: real rights [0, n_r), dummies of lefts [n_r, n_r + n_l)
+    rows = np.concatenate([li, np.arange(n_l), n_l + np.arange(n_r), n_l + ri])
+    cols = np.concatenate([ri, n_r + np.arange(n_l), np.arange(n_r), n_r + li])
+    # All weights shifted by +1: LAPJVsp needs non-zero weights, a full matching has a fixed
+    # number of edges, so the shift changes nothing.
+    weights = np.concatenate([cost, np.full(n_l, half), np.full(n_r, half), np.zeros(ri.size)])
+    graph = csr_matrix((weights + 1.0, (rows, cols)), shape=(n_l + n_r, n_r + n_l))
+    graph.sum_duplicates()
+    row, col = min_weight_full_bipartite_matching(graph)
+    real = (row < n_l) & (col < n_r)
+    return lu[row[real]], ru[col[real]]
+
+
+def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
+    """For every detection, the earlier report of the same sensor it may duplicate (-1 if none):
+    within `duplicate_window` in time and `duplicate_velocity_tolerance` in speed."""
+    n = s.time.size
+    leader = np.full(n, -1, dtype=np.int64)
+    if params.duplicate_window <= 0:
+        return leader
+    tol = np.log1p(params.duplicate_velocity_tolerance)
+    for k in range(s.positions.size):
+        m = s.members(k)
+        for lag in range(1, m.size):
+            later, earlier = m[lag:], m[:-lag]
+            close = s.time[later] - s.time[earlier] <= params.duplicate_window
+            if not close.any():
+                break
+            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tol)
+            fresh = alike & (leader[later] < 0)
+            leader[later[fresh]] = earlier[fresh]
+    return leader
+
+
+def build_tracks(
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    leader: IntArray,
+    progress: Progress | None,
+    done: float,
+    share: float,
+) -> IntArray:
+    """One sequential pass over the sensors: the track index of every detection (-1 = none)."""
+    n = s.time.size
+    n_sensors = s.positions.size
+    track = np.full(n, -1, dtype=np.int64)
+    level = TrackLevel.start(s)
+    tail = np.zeros(0, dtype=np.int64)  # last detection of every track, by track index
+    for q in range(n_sensors):
+        members = s.members(q)
+        linked_b = np.zeros(0, dtype=np.int64)
+        if q > 0 and tail.size:
+            open_tails = tail[s.sensor[tail] >= q - 1 - params.max_skip]
+            a, b = gated_pairs(s, model, params, open_tails, q)
+            if a.size:
+                before = Level(level.mean[a], level.count[a])
+                after = Level(s.relative_speed[b], np.ones(b.size))
+                cost = link_cost(s, model, params, a, b, before, after)
+                linked_a, linked_b = match(a, b, cost, params.gate_cost)
+                level.extend(s, linked_a, linked_b)
+                track[linked_b] = track[linked_a]
+                tail[track[linked_b]] = linked_b
+        # Births: unmatched detections, except a report that may duplicate one just linked
+        # (same sensor, moments apart, same speed): one passage reported twice must not start a
+        # second track. Two such reports both unmatched both start tracks, since they may be two
+        # vehicles side by side; a copy's track then dies short (`min_track_length`).
+        unmatched = members[track[members] < 0]
+        twin_linked = np.zeros(n, dtype=bool)
+        copies = linked_b[leader[linked_b] >= 0]
+        twin_linked[leader[copies]] = True
+        lead = leader[unmatched]
+        twin_linked[unmatched[lead >= 0]] |= track[lead[lead >= 0]] >= 0
+        born = unmatched[~twin_linked[unmatched]]
+        track[born] = tail.size + np.arange(born.size)
+        tail = np.concatenate([tail, born])
+        if progress:
+            progress(done + share * (q + 1) / n_sensors)
+    return track
+
+
+def refine_boundaries(
+    s: Sensors, model: SegmentModel, params: AssignmentParams, track: IntArray
+) -> IntArray:
+    """Re-pair the tracks across every sensor boundary, seeing both sides whole.
+
+    The sequential pass chooses each link knowing only the past; here every track is cut before
+    sensor k into a prefix and a suffix, and prefixes are matched to suffixes again with the same
+    link cost, the speed-level term now comparing the prefix's mean speed with the suffix's. This
+    undoes swaps between targets that crossed at near-equal speeds and joins fragments that a
+    failed link split (a prefix without suffix meets a suffix without prefix).
+    """
+    track = track.copy()
+    reach = params.max_skip + 1
+    for k in range(1, s.positions.size):
+        assigned = np.flatnonzero(track >= 0)
+        if assigned.size == 0:
+            break
+        chain = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
+        ids = track[chain]
+        run_start = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+        run_length = np.diff(np.r_[run_start, chain.size])
+        run_id = ids[run_start]
+        in_prefix = s.sensor[chain] < k
+        prefix_count = np.add.reduceat(in_prefix.astype(np.int64), run_start)
+        cumulative = np.cumsum(s.relative_speed[chain])
+        total = np.add.reduceat(s.relative_speed[chain], run_start)
+        before_start = np.where(run_start > 0, cumulative[np.maximum(run_start - 1, 0)], 0.0)
+        prefix_sum = np.where(
+            prefix_count > 0,
+            cumulative[run_start + np.maximum(prefix_count, 1) - 1] - before_start,
+            0.0,
+        )
+        has_prefix = prefix_count > 0
+        has_suffix = prefix_count < run_length
+        tail = chain[run_start + prefix_count - 1][has_prefix]
+        head = chain[np.minimum(run_start + prefix_count, chain.size - 1)][has_suffix]
+        near_tail = s.sensor[tail] >= k - reach
+        near_head = s.sensor[head] < k + reach
+        if not near_tail.any() or not near_head.any():
+            continue
+        tail_run = np.flatnonzero(has_prefix)[near_tail]
+        head_run = np.flatnonzero(has_suffix)[near_head]
+        # Candidate pairs: every near tail with every near head at each later sensor in reach.
+        pairs_a: list[IntArray] = []
+        pairs_b: list[IntArray] = []
+        head_of = np.full(s.time.size, -1, dtype=np.int64)
+        head_of[head[near_head]] = head_run
+        for q in range(k, min(k + reach, s.positions.size)):
+            tails = tail[near_tail]
+            a, b = gated_pairs(s, model, params, tails[s.sensor[tails] >= q - reach], q)
+            ok = head_of[b] >= 0
+            pairs_a.append(a[ok])
+            pairs_b.append(b[ok])
+        a = np.concatenate(pairs_a)
+        b = np.concatenate(pairs_b)
+        if a.size == 0:
+            continue
+        run_of_tail = np.full(s.time.size, -1, dtype=np.int64)
+        run_of_tail[tail[near_tail]] = tail_run
+        ra, rb = run_of_tail[a], head_of[b]
+        before = Level(prefix_sum[ra] / prefix_count[ra], prefix_count[ra].astype(np.float64))
+        suffix_count = (run_length - prefix_count)[rb]
+        after = Level(
+            (total[rb] - prefix_sum[rb]) / suffix_count, suffix_count.astype(np.float64)
+        )
+        cost = link_cost(s, model, params, a, b, before, after)
+        # Splitting a track costs more here than declining a link did: a track the forward pass
+        # built is evidence in itself, so re-pairing must pay for itself.
+        linked_a, linked_b = match(a, b, cost, REFINE_GATE_FACTOR * params.gate_cost)
+        # Suffixes re-paired or left alone take a new id: the prefix's, or a fresh one.
+        new_id = np.full(run_id.size, -1, dtype=np.int64)
+        new_id[head_of[linked_b]] = run_id[run_of_tail[linked_a]]
+        changed = np.flatnonzero(has_suffix & has_prefix | (new_id >= 0))
+        changed = changed[new_id[changed] != run_id[changed]]
+        if changed.size == 0:
+            continue
+        fresh = changed[new_id[changed] < 0]
+        # A suffix that kept no prefix but had one becomes a track of its own.
+        fresh = fresh[has_prefix[fresh]]
+        new_id[fresh] = track.max() + 1 + np.arange(fresh.size)
+        moved = changed[new_id[changed] >= 0]
+        for run in moved:
+            members = chain[run_start[run] + prefix_count[run] : run_start[run] + run_length[run]]
+            track[members] = new_id[run]
+    return track
+
+
+def learn_segments(
+    s: Sensors, track: IntArray, params: AssignmentParams, max_span: int
+) -> SegmentModel:
+    """Fit every segment's model from the detections of tracks with at least three detections:
+    medians for the biases, 1.4826 x MAD for the spreads (robust to the odd wrong link)."""
+    n_sensors = s.positions.size
+    prior = SegmentModel.prior(n_sensors, max_span, params)
+    assigned = np.flatnonzero(track >= 0)
+    sizes = np.bincount(track[assigned])
+    confident = assigned[sizes[track[assigned]] >= 3]
+    # Detections of a track in road order: sort by (track, sensor).
+    chain = confident[np.lexsort((s.sensor[confident], track[confident]))]
+    for span in range(1, max_span + 1):
+        if chain.size <= span:
+            continue
+        a, b = chain[:-span], chain[span:]
+        same = track[a] == track[b]
+        a, b = a[same], b[same]
+        p = s.sensor[a]
+        gap = s.sensor[b] - p
+        within = gap == span
+        a, b, p = a[within], b[within], p[within]
+        dt = s.time[b] - s.time[a]
+        ok = dt > 0
+        a, b, p, dt = a[ok], b[ok], p[ok], dt[ok]
+        if a.size < params.min_segment_samples:
+            continue  # keep the prior for this span
+        dx = s.positions[s.sensor[b]] - s.positions[p]
+        log_bias = np.log(dt / (dx * 0.5 * (1.0 / s.speed[a] + 1.0 / s.speed[b])))
+        ratio = s.log_speed[b] - s.log_speed[a]
+        pooled = _robust(log_bias), _robust(ratio)
+        counts = np.bincount(p, minlength=n_sensors)
+        for k in np.flatnonzero(counts):
+            here = p == k
+            # Shrink each segment towards the pooled fit, by its number of links: a segment
+            # seen by ten targets must not get a spread measured on ten numbers alone.
+            weight = counts[k] / (counts[k] + params.min_segment_samples)
+            centre, spread = _shrunk(_robust(log_bias[here]), pooled[0], weight)
+            prior.log_bias[k, span], prior.time_spread[k, span] = centre, spread
+            centre, spread = _shrunk(_robust(ratio[here]), pooled[1], weight)
+            prior.log_speed_ratio[k, span], prior.speed_spread[k, span] = centre, spread
+        unseen = counts == 0
+        prior.log_bias[unseen, span], prior.time_spread[unseen, span] = pooled[0]
+        prior.log_speed_ratio[unseen, span], prior.speed_spread[unseen, span] = pooled[1]
+    if confident.size:
+        members = track[confident]
+        _, which = np.unique(members, return_inverse=True)
+        mean = np.bincount(which, s.relative_speed[confident]) / np.bincount(which)
+        deviation = s.relative_speed[confident] - mean[which]
+        prior.preferred_speed_spread = _robust(deviation)[1]
+    prior.preferred_speed_spread = max(prior.preferred_speed_spread, MIN_RELATIVE_SPREAD)
+    # A learned spread is never trusted below these: sensors measure to a per cent at best.
+    np.maximum(prior.time_spread, MIN_RELATIVE_SPREAD, out=prior.time_spread)
+    np.maximum(prior.speed_spread, MIN_RELATIVE_SPREAD, out=prior.speed_spread)
+    return prior
+
+
+def _robust(values: FloatArray) -> tuple[float, float]:
+    """Median and normal-consistent MAD."""
+    centre = float(np.median(values))
+    return centre, 1.4826 * float(np.median(np.abs(values - centre)))
+
+
+def _shrunk(
+    own: tuple[float, float], pooled: tuple[float, float], weight: float
+) -> tuple[float, float]:
+    centre = weight * own[0] + (1.0 - weight) * pooled[0]
+    spread = np.sqrt(weight * own[1] ** 2 + (1.0 - weight) * pooled[1] ** 2)
+    return centre, float(spread)
+
+
+def finish(
+    s: Sensors, track: IntArray, params: AssignmentParams
+) -> IntArray:
+    """Drop tracks too short to be targets; number the rest 0, 1, ..."""
+    out = np.full(track.size, -1, dtype=np.int64)
+    assigned = track >= 0
+    if not assigned.any():
+        return out
+    sizes = np.bincount(track[assigned])
+    keep = assigned.copy()
+    keep[assigned] = sizes[track[assigned]] >= params.min_track_length
+    _, out[keep] = np.unique(track[keep], return_inverse=True)
+    return out
+
+
+class AssignmentAssociator(Associator):
+    name: ClassVar[str] = "assignment"
+    description: ClassVar[str] = (
+        "Constraint-aware tracking: links each sensor's detections to the tracks of the previous "
+        "sensors by sparse minimum-cost assignment with a kinematic cost, bridging missed "
+        "detections, then learns each road segment's travel-time behaviour and re-associates. "
+        "At most one detection per sensor per target; false alarms stay unassigned; needs no "
+        "labels and no target count."
+    )
+    Params = AssignmentParams
+    params: AssignmentParams
+
+    def group(self, detections: Detections, progress: Progress | None = None) -> IntArray:
+        p = self.params
+        s = arrange(detections, p)
+        max_span = p.max_skip + 1
+        model = SegmentModel.prior(s.positions.size, max_span, p)
+        leader = duplicate_followers(s, p)
+        rounds = p.em_rounds + 1
+        track = np.zeros(0, dtype=np.int64)
+        for r in range(rounds):
+            track = build_tracks(s, model, p, leader, progress, r / rounds, 1.0 / rounds)
+            if r + 1 < rounds:
+                model = learn_segments(s, track, p, max_span)
+        for _ in range(p.refine_sweeps):
+            track = refine_boundaries(s, model, p, track)
+        return finish(s, track, p)
