@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+import numpy.typing as npt
 from pydantic import Field
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import min_weight_full_bipartite_matching
@@ -37,8 +38,11 @@ from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 from service.association.associators.base import Associator, AssociatorParams, Progress
 from service.association.detections import Detections, FloatArray, IntArray
 
+BoolArray = npt.NDArray[np.bool_]
+
 MIN_RELATIVE_SPREAD = 0.01
 REFINE_GATE_FACTOR = 2.0
+TIME_HUBER = 3.0  # travel-time residuals beyond 3 spreads count linearly: heavy tails
 
 
 class AssignmentParams(AssociatorParams):
@@ -264,6 +268,22 @@ def huber(r: FloatArray, k: float = 2.0) -> FloatArray:
     return np.where(a <= k, a * a, 2.0 * k * a - k * k)
 
 
+def time_residual(
+    s: Sensors, model: SegmentModel, params: AssignmentParams, a: IntArray, b: IntArray
+) -> tuple[FloatArray, FloatArray]:
+    """Standardised error of the travel time from a to b against the segment's prediction from
+    both ends' speeds, and the unexplained log speed change (which widens the spread: where
+    between the sensors the speed changed is unknown, so the travel time is too)."""
+    p, q = s.sensor[a], s.sensor[b]
+    span = q - p
+    dx = s.positions[q] - s.positions[p]
+    predicted = np.exp(model.log_bias[p, span]) * dx * 0.5 * (1.0 / s.speed[a] + 1.0 / s.speed[b])
+    ratio = s.log_speed[b] - s.log_speed[a] - model.log_speed_ratio[p, span]
+    rel = np.hypot(model.time_spread[p, span], params.velocity_change_ambiguity * ratio)
+    spread = np.hypot(rel * predicted, params.timestamp_noise * np.sqrt(2.0))
+    return (s.time[b] - s.time[a] - predicted) / spread, ratio
+
+
 def link_cost(
     s: Sensors,
     model: SegmentModel,
@@ -277,14 +297,9 @@ def link_cost(
 
     `before` is the mean relative speed (and its number of detections) of the track ending in a,
     `after` that of the track starting with b (b alone, when linking sensor by sensor)."""
-    p, q = s.sensor[a], s.sensor[b]
-    span = q - p
-    dx = s.positions[q] - s.positions[p]
-    predicted = np.exp(model.log_bias[p, span]) * dx * 0.5 * (1.0 / s.speed[a] + 1.0 / s.speed[b])
-    ratio = s.log_speed[b] - s.log_speed[a] - model.log_speed_ratio[p, span]
-    rel = np.hypot(model.time_spread[p, span], params.velocity_change_ambiguity * ratio)
-    spread = np.hypot(rel * predicted, params.timestamp_noise * np.sqrt(2.0))
-    r_time = (s.time[b] - s.time[a] - predicted) / spread
+    p = s.sensor[a]
+    span = s.sensor[b] - p
+    r_time, ratio = time_residual(s, model, params, a, b)
     r_speed = ratio / model.speed_spread[p, span]
     # A driver keeps a preferred speed relative to the traffic around: compare b's speed, relative
     # to its sensor's typical speed, with the mean of the track so far.
@@ -296,7 +311,7 @@ def link_cost(
     )
     r_level = (after.mean - before.mean) / level_spread
     return (
-        huber(r_time, 3.0)
+        huber(r_time, TIME_HUBER)
         + params.velocity_change_weight * huber(r_speed)
         + params.preferred_speed_weight * huber(r_level)
         + params.miss_cost * (span - 1)
@@ -338,6 +353,7 @@ def gated_pairs(
     params: AssignmentParams,
     a: IntArray,
     q: int,
+    gate: float,
 ) -> tuple[IntArray, IntArray]:
     """Candidate (a, b) pairs, b at sensor q, whose passing time falls in a's window."""
     members = s.members(q)
@@ -354,10 +370,17 @@ def gated_pairs(
     pair_a = np.repeat(a, count)
     offsets = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
     pair_b = members[np.repeat(first, count) + offsets]
-    return pair_a, pair_b
+    # The window allowed for any speed at q; now that b's speed is known, drop the pairs whose
+    # travel time alone already costs more than the gate (cheap, and most pairs go here).
+    r_time, _ = time_residual(s, model, params, pair_a, pair_b)
+    span = s.sensor[pair_b] - s.sensor[pair_a]
+    keep = huber(r_time, TIME_HUBER) + params.miss_cost * (span - 1) < gate
+    return pair_a[keep], pair_b[keep]
 
 
-def match(left: IntArray, right: IntArray, cost: FloatArray, gate: float) -> tuple[IntArray, IntArray]:
+def match(
+    left: IntArray, right: IntArray, cost: FloatArray, gate: float
+) -> tuple[IntArray, IntArray]:
     """Minimum-cost one-to-one matching of the (left, right, cost) edges, every node free to stay
     unmatched at cost gate / 2 (so an edge is taken only if it beats leaving both ends alone).
 
@@ -428,7 +451,7 @@ def build_tracks(
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
             open_tails = tail[s.sensor[tail] >= q - 1 - params.max_skip]
-            a, b = gated_pairs(s, model, params, open_tails, q)
+            a, b = gated_pairs(s, model, params, open_tails, q, params.gate_cost)
             if a.size:
                 before = Level(level.mean[a], level.count[a])
                 after = Level(s.relative_speed[b], np.ones(b.size))
@@ -455,91 +478,111 @@ def build_tracks(
     return track
 
 
+def successors(s: Sensors, track: IntArray) -> tuple[IntArray, IntArray]:
+    """The next and previous detection of every detection in its track (-1 = none)."""
+    n = track.size
+    nxt = np.full(n, -1, dtype=np.int64)
+    prv = np.full(n, -1, dtype=np.int64)
+    assigned = np.flatnonzero(track >= 0)
+    chain = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
+    same = track[chain[1:]] == track[chain[:-1]]
+    nxt[chain[:-1][same]] = chain[1:][same]
+    prv[chain[1:][same]] = chain[:-1][same]
+    return nxt, prv
+
+
+def tracks_from_links(s: Sensors, prv: IntArray, in_track: BoolArray) -> IntArray:
+    """Track index of every detection from its predecessor links (-1 where not in a track)."""
+    track = np.full(prv.size, -1, dtype=np.int64)
+    count = 0
+    for k in range(s.positions.size):
+        members = s.members(k)
+        members = members[in_track[members]]
+        linked = prv[members] >= 0
+        track[members[linked]] = track[prv[members[linked]]]
+        first = members[~linked]
+        track[first] = count + np.arange(first.size)
+        count += first.size
+    return track
+
+
 def refine_boundaries(
     s: Sensors, model: SegmentModel, params: AssignmentParams, track: IntArray
 ) -> IntArray:
     """Re-pair the tracks across every sensor boundary, seeing both sides whole.
 
-    The sequential pass chooses each link knowing only the past; here every track is cut before
-    sensor k into a prefix and a suffix, and prefixes are matched to suffixes again with the same
-    link cost, the speed-level term now comparing the prefix's mean speed with the suffix's. This
-    undoes swaps between targets that crossed at near-equal speeds and joins fragments that a
-    failed link split (a prefix without suffix meets a suffix without prefix).
+    The sequential pass chooses each link knowing only the past. Here, boundary after boundary,
+    every track is cut before sensor k into a prefix and a suffix, and prefixes are matched to
+    suffixes again with the same link cost, its speed-level term now comparing the prefix's mean
+    speed with the suffix's. This undoes swaps between targets that crossed at near-equal speeds
+    and joins fragments a failed link split (a prefix without a suffix meets a suffix without a
+    prefix). Each boundary costs time in proportion to the detections near it.
     """
-    track = track.copy()
+    nxt, prv = successors(s, track)
+    in_track = track >= 0
     reach = params.max_skip + 1
-    for k in range(1, s.positions.size):
-        assigned = np.flatnonzero(track >= 0)
-        if assigned.size == 0:
+    n_sensors = s.positions.size
+    u = s.relative_speed
+    # Suffix sums (from a detection to its track's end), accumulated backwards. A suffix only
+    # involves links after its head, which this sweep has not reached yet, so they stay valid.
+    tail_sum = np.where(in_track, u, 0.0)
+    tail_count = in_track.astype(np.float64)
+    for k in range(n_sensors - 1, -1, -1):
+        m = s.members(k)
+        m = m[nxt[m] >= 0]
+        tail_sum[m] += tail_sum[nxt[m]]
+        tail_count[m] += tail_count[nxt[m]]
+    # Prefix sums (from the track's start to a detection), final once the sweep passes it.
+    head_sum = np.where(in_track, u, 0.0)
+    head_count = in_track.astype(np.float64)
+    for k in range(1, n_sensors + 1):
+        # Detections at sensor k - 1 got their final predecessor at the previous boundary.
+        m = s.members(k - 1)
+        m = m[prv[m] >= 0]
+        head_sum[m] = u[m] + head_sum[prv[m]]
+        head_count[m] = 1.0 + head_count[prv[m]]
+        if k == n_sensors:
             break
-        chain = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
-        ids = track[chain]
-        run_start = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
-        run_length = np.diff(np.r_[run_start, chain.size])
-        run_id = ids[run_start]
-        in_prefix = s.sensor[chain] < k
-        prefix_count = np.add.reduceat(in_prefix.astype(np.int64), run_start)
-        cumulative = np.cumsum(s.relative_speed[chain])
-        total = np.add.reduceat(s.relative_speed[chain], run_start)
-        before_start = np.where(run_start > 0, cumulative[np.maximum(run_start - 1, 0)], 0.0)
-        prefix_sum = np.where(
-            prefix_count > 0,
-            cumulative[run_start + np.maximum(prefix_count, 1) - 1] - before_start,
-            0.0,
-        )
-        has_prefix = prefix_count > 0
-        has_suffix = prefix_count < run_length
-        tail = chain[run_start + prefix_count - 1][has_prefix]
-        head = chain[np.minimum(run_start + prefix_count, chain.size - 1)][has_suffix]
-        near_tail = s.sensor[tail] >= k - reach
-        near_head = s.sensor[head] < k + reach
-        if not near_tail.any() or not near_head.any():
+        before = np.concatenate([s.members(q) for q in range(max(0, k - reach), k)])
+        tails = before[
+            in_track[before] & ((nxt[before] < 0) | (s.sensor[np.maximum(nxt[before], 0)] >= k))
+        ]
+        after = np.concatenate([s.members(q) for q in range(k, min(n_sensors, k + reach))])
+        heads = after[
+            in_track[after] & ((prv[after] < 0) | (s.sensor[np.maximum(prv[after], 0)] < k))
+        ]
+        if tails.size == 0 or heads.size == 0:
             continue
-        tail_run = np.flatnonzero(has_prefix)[near_tail]
-        head_run = np.flatnonzero(has_suffix)[near_head]
-        # Candidate pairs: every near tail with every near head at each later sensor in reach.
+        is_head = np.zeros(s.time.size, dtype=bool)
+        is_head[heads] = True
         pairs_a: list[IntArray] = []
         pairs_b: list[IntArray] = []
-        head_of = np.full(s.time.size, -1, dtype=np.int64)
-        head_of[head[near_head]] = head_run
-        for q in range(k, min(k + reach, s.positions.size)):
-            tails = tail[near_tail]
-            a, b = gated_pairs(s, model, params, tails[s.sensor[tails] >= q - reach], q)
-            ok = head_of[b] >= 0
+        for q in range(k, min(k + reach, n_sensors)):
+            near = tails[s.sensor[tails] >= q - reach]
+            a, b = gated_pairs(s, model, params, near, q, REFINE_GATE_FACTOR * params.gate_cost)
+            ok = is_head[b]
             pairs_a.append(a[ok])
             pairs_b.append(b[ok])
         a = np.concatenate(pairs_a)
         b = np.concatenate(pairs_b)
-        if a.size == 0:
-            continue
-        run_of_tail = np.full(s.time.size, -1, dtype=np.int64)
-        run_of_tail[tail[near_tail]] = tail_run
-        ra, rb = run_of_tail[a], head_of[b]
-        before = Level(prefix_sum[ra] / prefix_count[ra], prefix_count[ra].astype(np.float64))
-        suffix_count = (run_length - prefix_count)[rb]
-        after = Level(
-            (total[rb] - prefix_sum[rb]) / suffix_count, suffix_count.astype(np.float64)
+        cost = link_cost(
+            s,
+            model,
+            params,
+            a,
+            b,
+            Level(head_sum[a] / head_count[a], head_count[a]),
+            Level(tail_sum[b] / tail_count[b], tail_count[b]),
         )
-        cost = link_cost(s, model, params, a, b, before, after)
         # Splitting a track costs more here than declining a link did: a track the forward pass
         # built is evidence in itself, so re-pairing must pay for itself.
         linked_a, linked_b = match(a, b, cost, REFINE_GATE_FACTOR * params.gate_cost)
-        # Suffixes re-paired or left alone take a new id: the prefix's, or a fresh one.
-        new_id = np.full(run_id.size, -1, dtype=np.int64)
-        new_id[head_of[linked_b]] = run_id[run_of_tail[linked_a]]
-        changed = np.flatnonzero(has_suffix & has_prefix | (new_id >= 0))
-        changed = changed[new_id[changed] != run_id[changed]]
-        if changed.size == 0:
-            continue
-        fresh = changed[new_id[changed] < 0]
-        # A suffix that kept no prefix but had one becomes a track of its own.
-        fresh = fresh[has_prefix[fresh]]
-        new_id[fresh] = track.max() + 1 + np.arange(fresh.size)
-        moved = changed[new_id[changed] >= 0]
-        for run in moved:
-            members = chain[run_start[run] + prefix_count[run] : run_start[run] + run_length[run]]
-            track[members] = new_id[run]
-    return track
+        crossing = tails[nxt[tails] >= 0]
+        prv[nxt[crossing]] = -1
+        nxt[crossing] = -1
+        nxt[linked_a] = linked_b
+        prv[linked_b] = linked_a
+    return tracks_from_links(s, prv, in_track)
 
 
 def learn_segments(
@@ -613,9 +656,7 @@ def _shrunk(
     return centre, float(spread)
 
 
-def finish(
-    s: Sensors, track: IntArray, params: AssignmentParams
-) -> IntArray:
+def finish(s: Sensors, track: IntArray, params: AssignmentParams) -> IntArray:
     """Drop tracks too short to be targets; number the rest 0, 1, ..."""
     out = np.full(track.size, -1, dtype=np.int64)
     assigned = track >= 0
