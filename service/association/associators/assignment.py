@@ -42,6 +42,11 @@ BoolArray = npt.NDArray[np.bool_]
 
 MIN_RELATIVE_SPREAD = 0.01
 REFINE_GATE_FACTOR = 2.0
+# The prior's search for each segment's bias: travel times up to 10x off the kinematic guess,
+# in bins of 5 %, from a sample of this many detections per sensor.
+PRIOR_LOG_RANGE = float(np.log(10.0))
+PRIOR_BIN = 0.05
+PRIOR_SAMPLE = 400
 TIME_HUBER = 3.0  # travel-time residuals beyond 3 spreads count linearly: heavy tails
 
 
@@ -178,16 +183,35 @@ class SegmentModel:
     preferred_speed_spread: float
 
     @classmethod
-    def prior(cls, n_sensors: int, max_span: int, params: AssignmentParams) -> SegmentModel:
-        """The kinematic model alone: no bias, the prior spreads (speed spread growing with span)."""
+    def prior(cls, s: Sensors, max_span: int, params: AssignmentParams) -> SegmentModel:
+        """What the detections say before any of them is linked.
+
+        Every segment's travel-time bias is the mode of log(observed / kinematic travel time)
+        over all pairs of its end sensors' detections within a broad window: the true pairs
+        pile up at the segment's bias, unrelated pairs spread thin. So a slow zone that changes
+        speeds at a sensor shows here, before the first link is made. The speed ratio is that of
+        the sensors' median speeds.
+        """
+        n_sensors = s.positions.size
         shape = (n_sensors, max_span + 1)
-        span = np.arange(max_span + 1, dtype=np.float64)
+        span_axis = np.arange(max_span + 1, dtype=np.float64)
+        log_bias = np.zeros(shape)
+        log_ratio = np.zeros(shape)
+        medians = [float(np.median(s.speed[s.members(k)])) for k in range(n_sensors)]
+        for p in range(n_sensors):
+            # A few hundred detections, evenly spread in time, are plenty to find a mode.
+            members = s.members(p)
+            a_all = members[:: max(1, members.size // PRIOR_SAMPLE)]
+            for span in range(1, min(max_span, n_sensors - 1 - p) + 1):
+                q = p + span
+                log_ratio[p, span] = np.log(medians[q] / medians[p])
+                log_bias[p, span] = _travel_time_mode(s, a_all, q)
         return cls(
-            np.zeros(shape),
+            log_bias,
             np.full(shape, params.travel_time_spread),
-            np.zeros(shape),
+            log_ratio,
             np.broadcast_to(
-                params.velocity_change_spread * np.sqrt(np.maximum(span, 1.0)), shape
+                params.velocity_change_spread * np.sqrt(np.maximum(span_axis, 1.0)), shape
             ).copy(),
             params.velocity_change_spread,
         )
@@ -260,6 +284,45 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         log_speed,
         log_speed - typical[sensor],
     )
+
+
+def _travel_time_mode(s: Sensors, a: IntArray, q: int) -> float:
+    """The most common log(observed / kinematic travel time) from detections a to sensor q."""
+    members = s.members(q)
+    if members.size == 0 or a.size == 0:
+        return 0.0
+    times = s.time[members]
+    dx = s.positions[q] - s.positions[s.sensor[a[0]]]
+    slowest = float(s.speed[members].min())
+    reach = np.exp(PRIOR_LOG_RANGE)
+    first = np.searchsorted(times, s.time[a], side="right")
+    last = np.searchsorted(times, s.time[a] + reach * dx * 0.5 * (1 / s.speed[a] + 1 / slowest))
+    count = np.maximum(last - first, 0)
+    pa = np.repeat(a, count)
+    pb = members[
+        np.repeat(first, count)
+        + np.arange(count.sum())
+        - np.repeat(np.cumsum(count) - count, count)
+    ]
+    if pa.size == 0:
+        return 0.0
+    kinematic = dx * 0.5 * (1.0 / s.speed[pa] + 1.0 / s.speed[pb])
+    values = np.log((s.time[pb] - s.time[pa]) / kinematic)
+    values = values[np.abs(values) <= PRIOR_LOG_RANGE]
+    if values.size == 0:
+        return 0.0
+    bins = np.arange(-PRIOR_LOG_RANGE, PRIOR_LOG_RANGE + PRIOR_BIN, PRIOR_BIN)
+    histogram = np.histogram(values, bins)[0].astype(np.float64)
+    # Unrelated pairs fall uniformly in time at the sensor's rate, so their expected number in a
+    # bin grows as e^value; the true pairs are the excess over that background.
+    span_of_time = max(float(times[-1] - times[0]), 1e-9)
+    rate = members.size / span_of_time
+    typical = dx * 0.5 * (1.0 / s.speed[a] + 1.0 / float(np.median(s.speed[members])))
+    histogram -= rate * float(typical.sum()) * np.diff(np.exp(bins))
+    smooth = np.convolve(histogram, [1.0, 2.0, 1.0], mode="same")
+    peak = 0.5 * (bins[np.argmax(smooth)] + bins[np.argmax(smooth) + 1])
+    near = values[np.abs(values - peak) <= 2 * PRIOR_BIN]
+    return float(np.median(near)) if near.size else float(peak)
 
 
 def huber(r: FloatArray, k: float = 2.0) -> FloatArray:
@@ -586,12 +649,19 @@ def refine_boundaries(
 
 
 def learn_segments(
-    s: Sensors, track: IntArray, params: AssignmentParams, max_span: int
+    s: Sensors, track: IntArray, params: AssignmentParams, prior: SegmentModel
 ) -> SegmentModel:
     """Fit every segment's model from the detections of tracks with at least three detections:
     medians for the biases, 1.4826 x MAD for the spreads (robust to the odd wrong link)."""
     n_sensors = s.positions.size
-    prior = SegmentModel.prior(n_sensors, max_span, params)
+    max_span = prior.log_bias.shape[1] - 1
+    prior = SegmentModel(
+        prior.log_bias.copy(),
+        prior.time_spread.copy(),
+        prior.log_speed_ratio.copy(),
+        prior.speed_spread.copy(),
+        prior.preferred_speed_spread,
+    )
     assigned = np.flatnonzero(track >= 0)
     sizes = np.bincount(track[assigned])
     confident = assigned[sizes[track[assigned]] >= 3]
@@ -615,20 +685,43 @@ def learn_segments(
         dx = s.positions[s.sensor[b]] - s.positions[p]
         log_bias = np.log(dt / (dx * 0.5 * (1.0 / s.speed[a] + 1.0 / s.speed[b])))
         ratio = s.log_speed[b] - s.log_speed[a]
-        pooled = _robust(log_bias), _robust(ratio)
         counts = np.bincount(p, minlength=n_sensors)
-        for k in np.flatnonzero(counts):
+        seen = np.flatnonzero(counts)
+        # Spreads pooled over all segments, each residual taken from its own segment's median.
+        bias_centre = np.zeros(n_sensors)
+        ratio_centre = np.zeros(n_sensors)
+        for k in seen:
+            bias_centre[k] = np.median(log_bias[p == k])
+            ratio_centre[k] = np.median(ratio[p == k])
+        pooled_time = _robust(log_bias - bias_centre[p])[1]
+        pooled_speed = _robust(ratio - ratio_centre[p])[1]
+        # Each segment's spreads are shrunk towards the pooled ones by its number of links (a
+        # segment seen by ten targets must not get a spread measured on ten numbers alone); its
+        # centres towards the prior's by precision (the prior is a rough guess, so a handful of
+        # links overrule it).
+        weight = counts / (counts + params.min_segment_samples)
+        for k in seen:
             here = p == k
-            # Shrink each segment towards the pooled fit, by its number of links: a segment
-            # seen by ten targets must not get a spread measured on ten numbers alone.
-            weight = counts[k] / (counts[k] + params.min_segment_samples)
-            centre, spread = _shrunk(_robust(log_bias[here]), pooled[0], weight)
-            prior.log_bias[k, span], prior.time_spread[k, span] = centre, spread
-            centre, spread = _shrunk(_robust(ratio[here]), pooled[1], weight)
-            prior.log_speed_ratio[k, span], prior.speed_spread[k, span] = centre, spread
+            w, n_k = weight[k], counts[k]
+            own_time = _robust(log_bias[here])[1]
+            own_speed = _robust(ratio[here])[1]
+            time_spread = np.sqrt(w * own_time**2 + (1 - w) * pooled_time**2)
+            speed_spread = np.sqrt(w * own_speed**2 + (1 - w) * pooled_speed**2)
+            prior.log_bias[k, span] = _posterior_centre(
+                bias_centre[k], time_spread, n_k, prior.log_bias[k, span], params.travel_time_spread
+            )
+            prior.log_speed_ratio[k, span] = _posterior_centre(
+                ratio_centre[k],
+                speed_spread,
+                n_k,
+                prior.log_speed_ratio[k, span],
+                params.velocity_change_spread,
+            )
+            prior.time_spread[k, span] = time_spread
+            prior.speed_spread[k, span] = speed_spread
         unseen = counts == 0
-        prior.log_bias[unseen, span], prior.time_spread[unseen, span] = pooled[0]
-        prior.log_speed_ratio[unseen, span], prior.speed_spread[unseen, span] = pooled[1]
+        prior.time_spread[unseen, span] = pooled_time
+        prior.speed_spread[unseen, span] = pooled_speed
     if confident.size:
         members = track[confident]
         _, which = np.unique(members, return_inverse=True)
@@ -642,18 +735,21 @@ def learn_segments(
     return prior
 
 
+def _posterior_centre(
+    measured: float, spread: float, count: int, prior: float, prior_spread: float
+) -> float:
+    """Precision-weighted mean of a measured centre (from `count` values) and a prior guess."""
+    data_precision = count / max(spread, MIN_RELATIVE_SPREAD) ** 2
+    prior_precision = 1.0 / prior_spread**2
+    return (data_precision * measured + prior_precision * prior) / (
+        data_precision + prior_precision
+    )
+
+
 def _robust(values: FloatArray) -> tuple[float, float]:
     """Median and normal-consistent MAD."""
     centre = float(np.median(values))
     return centre, 1.4826 * float(np.median(np.abs(values - centre)))
-
-
-def _shrunk(
-    own: tuple[float, float], pooled: tuple[float, float], weight: float
-) -> tuple[float, float]:
-    centre = weight * own[0] + (1.0 - weight) * pooled[0]
-    spread = np.sqrt(weight * own[1] ** 2 + (1.0 - weight) * pooled[1] ** 2)
-    return centre, float(spread)
 
 
 def finish(s: Sensors, track: IntArray, params: AssignmentParams) -> IntArray:
@@ -685,14 +781,15 @@ class AssignmentAssociator(Associator):
         p = self.params
         s = arrange(detections, p)
         max_span = p.max_skip + 1
-        model = SegmentModel.prior(s.positions.size, max_span, p)
+        prior = SegmentModel.prior(s, max_span, p)
+        model = prior
         leader = duplicate_followers(s, p)
         rounds = p.em_rounds + 1
         track = np.zeros(0, dtype=np.int64)
         for r in range(rounds):
             track = build_tracks(s, model, p, leader, progress, r / rounds, 1.0 / rounds)
             if r + 1 < rounds:
-                model = learn_segments(s, track, p, max_span)
+                model = learn_segments(s, track, p, prior)
         for _ in range(p.refine_sweeps):
             track = refine_boundaries(s, model, p, track)
         return finish(s, track, p)
