@@ -154,6 +154,13 @@ class AssignmentParams(AssociatorParams):
         ge=1,
         description="Tracks with fewer detections are taken for false alarms (left unassigned).",
     )
+    min_track_evidence: float = Field(
+        default=8.0,
+        ge=0,
+        description="Least total saving of a track's links over leaving its detections apart "
+        "(the sum of gate_cost - link cost); weaker tracks are taken for chained false alarms. "
+        "Higher drops more doubtful short tracks; 0 keeps every track.",
+    )
     duplicate_window: float = Field(
         default=0.5,
         ge=0,
@@ -315,11 +322,13 @@ def _travel_time_mode(s: Sensors, a: IntArray, q: int) -> float:
     histogram = np.histogram(values, bins)[0].astype(np.float64)
     # Unrelated pairs fall uniformly in time at the sensor's rate, so their expected number in a
     # bin grows as e^value; the true pairs are the excess over that background.
-    span_of_time = max(float(times[-1] - times[0]), 1e-9)
-    rate = members.size / span_of_time
+    span_of_time = float(times[-1] - times[0])
+    rate = (members.size - 1) / span_of_time if span_of_time > 0 else 0.0
     typical = dx * 0.5 * (1.0 / s.speed[a] + 1.0 / float(np.median(s.speed[members])))
     histogram -= rate * float(typical.sum()) * np.diff(np.exp(bins))
     smooth = np.convolve(histogram, [1.0, 2.0, 1.0], mode="same")
+    if smooth.max() <= 0:
+        return 0.0  # no pile-up above chance: keep the kinematic model
     peak = 0.5 * (bins[np.argmax(smooth)] + bins[np.argmax(smooth) + 1])
     near = values[np.abs(values - peak) <= 2 * PRIOR_BIN]
     return float(np.median(near)) if near.size else float(peak)
@@ -752,15 +761,36 @@ def _robust(values: FloatArray) -> tuple[float, float]:
     return centre, 1.4826 * float(np.median(np.abs(values - centre)))
 
 
-def finish(s: Sensors, track: IntArray, params: AssignmentParams) -> IntArray:
-    """Drop tracks too short to be targets; number the rest 0, 1, ..."""
+def finish(s: Sensors, model: SegmentModel, params: AssignmentParams, track: IntArray) -> IntArray:
+    """Keep the tracks that are better explained as targets than as false alarms; number them.
+
+    A track's evidence is what its links save over leaving their detections apart: the sum of
+    (gate_cost - link cost). A few false alarms can chain up through loose, sensor-skipping
+    links; their evidence stays small, a real target's does not.
+    """
     out = np.full(track.size, -1, dtype=np.int64)
-    assigned = track >= 0
-    if not assigned.any():
+    assigned = np.flatnonzero(track >= 0)
+    if assigned.size == 0:
         return out
-    sizes = np.bincount(track[assigned])
-    keep = assigned.copy()
-    keep[assigned] = sizes[track[assigned]] >= params.min_track_length
+    chain = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
+    ids = track[chain]
+    linked = np.flatnonzero(ids[1:] == ids[:-1])
+    a, b = chain[linked], chain[linked + 1]
+    # The track's mean relative speed up to a, as the forward pass saw it.
+    u = s.relative_speed[chain]
+    start = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    run = np.cumsum(np.r_[True, ids[1:] != ids[:-1]]) - 1
+    cumulative = np.cumsum(u)
+    offset = np.where(start > 0, cumulative[np.maximum(start - 1, 0)], 0.0)[run]
+    position = np.arange(chain.size) - start[run] + 1.0
+    prefix_mean = (cumulative - offset) / position
+    before = Level(prefix_mean[linked], position[linked])
+    after = Level(s.relative_speed[b], np.ones(b.size))
+    saving = params.gate_cost - link_cost(s, model, params, a, b, before, after)
+    evidence = np.bincount(ids[linked], weights=np.maximum(saving, 0.0), minlength=ids.max() + 1)
+    sizes = np.bincount(ids)
+    good = (sizes >= params.min_track_length) & (evidence >= params.min_track_evidence)
+    keep = chain[good[ids]]
     _, out[keep] = np.unique(track[keep], return_inverse=True)
     return out
 
@@ -792,4 +822,4 @@ class AssignmentAssociator(Associator):
                 model = learn_segments(s, track, p, prior)
         for _ in range(p.refine_sweeps):
             track = refine_boundaries(s, model, p, track)
-        return finish(s, track, p)
+        return finish(s, model, p, track)
