@@ -47,7 +47,15 @@ REFINE_GATE_FACTOR = 2.0
 PRIOR_LOG_RANGE = float(np.log(10.0))
 PRIOR_BIN = 0.05
 PRIOR_SAMPLE = 400
-TIME_HUBER = 3.0  # travel-time residuals beyond 3 spreads count linearly: heavy tails
+TIME_HUBER = 3.0
+PAIR_FIELDS = (
+    "a",
+    "b",
+    "r_time",
+    "ratio",
+    "speed_spread",
+    "span",
+)  # travel-time residuals beyond 3 spreads count linearly: heavy tails
 
 
 class AssignmentParams(AssociatorParams):
@@ -263,6 +271,10 @@ class Sensors:
     speed: FloatArray  # floored
     log_speed: FloatArray
     relative_speed: FloatArray  # log speed minus the median log speed at its sensor
+    # The same, in `order` (so a sensor's values are one contiguous slice)
+    sorted_time: FloatArray
+    sorted_inverse_speed: FloatArray
+    sorted_log_speed: FloatArray
 
     def members(self, k: int) -> IntArray:
         return self.order[self.start[k] : self.start[k + 1]]
@@ -290,6 +302,9 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         speed,
         log_speed,
         log_speed - typical[sensor],
+        detections.timestamp[order],
+        1.0 / speed[order],
+        log_speed[order],
     )
 
 
@@ -340,83 +355,93 @@ def huber(r: FloatArray, k: float = 2.0) -> FloatArray:
     return np.where(a <= k, a * a, 2.0 * k * a - k * k)
 
 
-def time_residual(
-    s: Sensors, model: SegmentModel, params: AssignmentParams, a: IntArray, b: IntArray
+@dataclass
+class Pairs:
+    """Candidate links a -> b with what their cost needs: the standardised travel-time error, the
+    unexplained log speed change, the segment's speed spread, and the number of sensors spanned.
+    """
+
+    a: IntArray
+    b: IntArray
+    r_time: FloatArray
+    ratio: FloatArray
+    speed_spread: FloatArray
+    span: IntArray
+
+    def take(self, keep: npt.NDArray[np.bool_]) -> Pairs:
+        return Pairs(
+            self.a[keep],
+            self.b[keep],
+            self.r_time[keep],
+            self.ratio[keep],
+            self.speed_spread[keep],
+            self.span[keep],
+        )
+
+    @classmethod
+    def between(
+        cls, s: Sensors, model: SegmentModel, params: AssignmentParams, a: IntArray, b: IntArray
+    ) -> Pairs:
+        """The given links, whatever sensors they join."""
+        p = s.sensor[a]
+        span = s.sensor[b] - p
+        half_length = (
+            np.exp(model.log_bias[p, span]) * 0.5 * (s.positions[s.sensor[b]] - s.positions[p])
+        )
+        r_time, ratio = _time_residual(
+            params,
+            half_length,
+            s.time[b] - s.time[a],
+            1.0 / s.speed[a] + 1.0 / s.speed[b],
+            s.log_speed[b] - s.log_speed[a] - model.log_speed_ratio[p, span],
+            model.time_spread[p, span],
+        )
+        return cls(a, b, r_time, ratio, model.speed_spread[p, span], span)
+
+
+def _time_residual(
+    params: AssignmentParams,
+    half_length: FloatArray,
+    travel: FloatArray,
+    inverse_speeds: FloatArray,
+    ratio: FloatArray,
+    time_spread: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
-    """Standardised error of the travel time from a to b against the segment's prediction from
-    both ends' speeds, and the unexplained log speed change (which widens the spread: where
-    between the sensors the speed changed is unknown, so the travel time is too)."""
-    p, q = s.sensor[a], s.sensor[b]
-    span = q - p
-    dx = s.positions[q] - s.positions[p]
-    predicted = np.exp(model.log_bias[p, span]) * dx * 0.5 * (1.0 / s.speed[a] + 1.0 / s.speed[b])
-    ratio = s.log_speed[b] - s.log_speed[a] - model.log_speed_ratio[p, span]
-    rel = np.hypot(model.time_spread[p, span], params.velocity_change_ambiguity * ratio)
-    spread = np.hypot(rel * predicted, params.timestamp_noise * np.sqrt(2.0))
-    return (s.time[b] - s.time[a] - predicted) / spread, ratio
+    """Standardised error of a travel time against the segment's prediction from both ends'
+    speeds (`half_length` is the segment's length / 2 times its bias). The unexplained speed
+    change `ratio` widens the spread: where between the sensors the speed changed is unknown, so
+    the travel time is too."""
+    predicted = half_length * inverse_speeds
+    ambiguity = params.velocity_change_ambiguity * ratio
+    relative = np.sqrt(time_spread * time_spread + ambiguity * ambiguity)
+    absolute = relative * predicted
+    spread = np.sqrt(absolute * absolute + 2.0 * params.timestamp_noise**2)
+    return (travel - predicted) / spread, ratio
 
 
 def link_cost(
-    s: Sensors,
-    model: SegmentModel,
-    params: AssignmentParams,
-    a: IntArray,
-    b: IntArray,
-    before: Level,
-    after: Level,
+    params: AssignmentParams, model: SegmentModel, pairs: Pairs, before: Level, after: Level
 ) -> FloatArray:
-    """Cost of linking detection a (earlier sensor) to detection b (later sensor), elementwise.
+    """Cost of every candidate link a -> b: a sum of robust squared standardised residuals.
 
     `before` is the mean relative speed (and its number of detections) of the track ending in a,
     `after` that of the track starting with b (b alone, when linking sensor by sensor)."""
-    p = s.sensor[a]
-    span = s.sensor[b] - p
-    r_time, ratio = time_residual(s, model, params, a, b)
-    r_speed = ratio / model.speed_spread[p, span]
-    # A driver keeps a preferred speed relative to the traffic around: compare b's speed, relative
-    # to its sensor's typical speed, with the mean of the track so far.
+    r_speed = pairs.ratio / pairs.speed_spread
+    # A driver keeps a preferred speed relative to the traffic around: compare the speeds,
+    # relative to their sensors' typical speed, of the two track pieces the link would join.
     # Speed fluctuations are correlated over several sensors, so a mean over many detections is
-    # not as sure as 1/n would say: cap the counts.
+    # not as sure as 1/n would say: the counts are capped.
     memory = params.preferred_speed_memory
     level_spread = model.preferred_speed_spread * np.sqrt(
         1.0 / np.minimum(before.count, memory) + 1.0 / np.minimum(after.count, memory)
     )
     r_level = (after.mean - before.mean) / level_spread
     return (
-        huber(r_time, TIME_HUBER)
+        huber(pairs.r_time, TIME_HUBER)
         + params.velocity_change_weight * huber(r_speed)
         + params.preferred_speed_weight * huber(r_level)
-        + params.miss_cost * (span - 1)
+        + params.miss_cost * (pairs.span - 1)
     )
-
-
-def time_window(
-    s: Sensors,
-    model: SegmentModel,
-    params: AssignmentParams,
-    a: IntArray,
-    q: int,
-    speed_range: tuple[float, float],
-) -> tuple[FloatArray, FloatArray]:
-    """Earliest and latest passing time at sensor q of a target seen as detection a: a gate
-    wide enough for any speed at q within `speed_range`, at the gate's number of spreads."""
-    p = s.sensor[a]
-    span = q - p
-    dx = s.positions[q] - s.positions[p]
-    bias = np.exp(model.log_bias[p, span])
-    fast, slow = speed_range[1], speed_range[0]
-    lo_pred = bias * dx * 0.5 * (1.0 / s.speed[a] + 1.0 / fast)
-    hi_pred = bias * dx * 0.5 * (1.0 / s.speed[a] + 1.0 / slow)
-    reach = np.sqrt(params.gate_cost)
-    worst_ratio = np.maximum(
-        np.abs(np.log(fast) - s.log_speed[a] - model.log_speed_ratio[p, span]),
-        np.abs(np.log(slow) - s.log_speed[a] - model.log_speed_ratio[p, span]),
-    )
-    rel = np.hypot(model.time_spread[p, span], params.velocity_change_ambiguity * worst_ratio)
-    slack = reach * params.timestamp_noise * np.sqrt(2.0)
-    lo = s.time[a] + lo_pred * np.exp(-reach * rel) - slack
-    hi = s.time[a] + hi_pred * (1.0 + reach * rel) + slack
-    return lo, hi
 
 
 def gated_pairs(
@@ -426,28 +451,63 @@ def gated_pairs(
     a: IntArray,
     q: int,
     gate: float,
-) -> tuple[IntArray, IntArray]:
-    """Candidate (a, b) pairs, b at sensor q, whose passing time falls in a's window."""
-    members = s.members(q)
-    if members.size == 0 or a.size == 0:
+) -> Pairs:
+    """Candidate links from detections a to sensor q whose travel time alone is within the gate.
+
+    The time window first allows any speed seen at q (sorted times, `searchsorted`), so the work
+    is proportional to the detections near each one, never to all pairs; then, with b's speed
+    known, pairs whose travel time alone costs more than the gate are dropped."""
+    lo_index, hi_index = s.start[q], s.start[q + 1]
+    times = s.sorted_time[lo_index:hi_index]
+    if times.size == 0 or a.size == 0:
         empty = np.zeros(0, dtype=np.int64)
-        return empty, empty
-    times = s.time[members]
-    speeds = s.speed[members]
-    lo, hi = time_window(s, model, params, a, q, (float(speeds.min()), float(speeds.max())))
+        none = np.zeros(0)
+        return Pairs(empty, empty, none, none, none, empty)
+    inverse_q = s.sorted_inverse_speed[lo_index:hi_index]
+    log_q = s.sorted_log_speed[lo_index:hi_index]
+    # Everything about a, once per a.
+    p = s.sensor[a]
+    span = q - p
+    half_length = np.exp(model.log_bias[p, span]) * 0.5 * (s.positions[q] - s.positions[p])
+    inverse_a = 1.0 / s.speed[a]
+    centre = s.log_speed[a] + model.log_speed_ratio[p, span]
+    time_spread = model.time_spread[p, span]
+    # The window: any speed at q, the gate's number of spreads, the widest ambiguity.
+    reach = np.sqrt(gate)
+    fastest, slowest = float(inverse_q.min()), float(inverse_q.max())
+    worst = np.maximum(np.abs(-np.log(fastest) - centre), np.abs(-np.log(slowest) - centre))
+    relative = np.sqrt(time_spread**2 + (params.velocity_change_ambiguity * worst) ** 2)
+    slack = reach * params.timestamp_noise * np.sqrt(2.0)
+    t_a = s.time[a]
+    lo = t_a + half_length * (inverse_a + fastest) * np.exp(-reach * relative) - slack
+    hi = t_a + half_length * (inverse_a + slowest) * (1.0 + reach * relative) + slack
     first = np.searchsorted(times, lo, side="left")
-    last = np.searchsorted(times, hi, side="right")
-    count = np.maximum(last - first, 0)
+    count = np.maximum(np.searchsorted(times, hi, side="right") - first, 0)
     total = int(count.sum())
-    pair_a = np.repeat(a, count)
-    offsets = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
-    pair_b = members[np.repeat(first, count) + offsets]
-    # The window allowed for any speed at q; now that b's speed is known, drop the pairs whose
-    # travel time alone already costs more than the gate (cheap, and most pairs go here).
-    r_time, _ = time_residual(s, model, params, pair_a, pair_b)
-    span = s.sensor[pair_b] - s.sensor[pair_a]
-    keep = huber(r_time, TIME_HUBER) + params.miss_cost * (span - 1) < gate
-    return pair_a[keep], pair_b[keep]
+    local = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(total)
+
+    def each(values: np.ndarray) -> np.ndarray:
+        return np.repeat(values, count)
+
+    r_time, ratio = _time_residual(
+        params,
+        each(half_length),
+        times[local] - each(t_a),
+        each(inverse_a) + inverse_q[local],
+        log_q[local] - each(centre),
+        each(time_spread),
+    )
+    pair_span = each(span)
+    keep = huber(r_time, TIME_HUBER) + params.miss_cost * (pair_span - 1) < gate
+    local = local[keep]
+    return Pairs(
+        each(a)[keep],
+        s.order[lo_index + local],
+        r_time[keep],
+        ratio[keep],
+        each(model.speed_spread[p, span])[keep],
+        pair_span[keep],
+    )
 
 
 def match(
@@ -523,11 +583,12 @@ def build_tracks(
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
             open_tails = tail[s.sensor[tail] >= q - 1 - params.max_skip]
-            a, b = gated_pairs(s, model, params, open_tails, q, params.gate_cost)
-            if a.size:
+            pairs = gated_pairs(s, model, params, open_tails, q, params.gate_cost)
+            if pairs.a.size:
+                a, b = pairs.a, pairs.b
                 before = Level(level.mean[a], level.count[a])
                 after = Level(s.relative_speed[b], np.ones(b.size))
-                cost = link_cost(s, model, params, a, b, before, after)
+                cost = link_cost(params, model, pairs, before, after)
                 linked_a, linked_b = match(a, b, cost, params.gate_cost)
                 level.extend(s, linked_a, linked_b)
                 track[linked_b] = track[linked_a]
@@ -604,6 +665,7 @@ def refine_boundaries(
         m = m[nxt[m] >= 0]
         tail_sum[m] += tail_sum[nxt[m]]
         tail_count[m] += tail_count[nxt[m]]
+    is_head = np.zeros(s.time.size, dtype=bool)
     # Prefix sums (from the track's start to a detection), final once the sweep passes it.
     head_sum = np.where(in_track, u, 0.0)
     head_count = in_track.astype(np.float64)
@@ -625,24 +687,19 @@ def refine_boundaries(
         ]
         if tails.size == 0 or heads.size == 0:
             continue
-        is_head = np.zeros(s.time.size, dtype=bool)
         is_head[heads] = True
-        pairs_a: list[IntArray] = []
-        pairs_b: list[IntArray] = []
+        found: list[Pairs] = []
         for q in range(k, min(k + reach, n_sensors)):
             near = tails[s.sensor[tails] >= q - reach]
-            a, b = gated_pairs(s, model, params, near, q, REFINE_GATE_FACTOR * params.gate_cost)
-            ok = is_head[b]
-            pairs_a.append(a[ok])
-            pairs_b.append(b[ok])
-        a = np.concatenate(pairs_a)
-        b = np.concatenate(pairs_b)
+            pairs = gated_pairs(s, model, params, near, q, REFINE_GATE_FACTOR * params.gate_cost)
+            found.append(pairs.take(is_head[pairs.b]))
+        is_head[heads] = False
+        pairs = Pairs(*(np.concatenate([getattr(f, name) for f in found]) for name in PAIR_FIELDS))
+        a, b = pairs.a, pairs.b
         cost = link_cost(
-            s,
-            model,
             params,
-            a,
-            b,
+            model,
+            pairs,
             Level(head_sum[a] / head_count[a], head_count[a]),
             Level(tail_sum[b] / tail_count[b], tail_count[b]),
         )
@@ -786,7 +843,8 @@ def finish(s: Sensors, model: SegmentModel, params: AssignmentParams, track: Int
     prefix_mean = (cumulative - offset) / position
     before = Level(prefix_mean[linked], position[linked])
     after = Level(s.relative_speed[b], np.ones(b.size))
-    saving = params.gate_cost - link_cost(s, model, params, a, b, before, after)
+    pairs = Pairs.between(s, model, params, a, b)
+    saving = params.gate_cost - link_cost(params, model, pairs, before, after)
     evidence = np.bincount(ids[linked], weights=np.maximum(saving, 0.0), minlength=ids.max() + 1)
     sizes = np.bincount(ids)
     good = (sizes >= params.min_track_length) & (evidence >= params.min_track_evidence)
