@@ -33,13 +33,17 @@ CASES: list[tuple[str, str, dict[str, object]]] = [
     ("congested (120 targets, slow zone x0.5)", "congested", {}),
     ("congested, 5% missed + 5% false alarms", "congested", FAULTS),
     ("congested, 5% duplicated", "congested", {"duplicate_probability": 0.05}),
-    ("congested, slow zone x0.1 (stop-and-go)", "congested", {
-        "slow_zone": {"start": 400.0, "end": 600.0, "speed_factor": 0.1}
-    }),
+    (
+        "congested, slow zone x0.1 (stop-and-go)",
+        "congested",
+        {"slow_zone": {"start": 400.0, "end": 600.0, "speed_factor": 0.1}},
+    ),
     ("congested, velocity fluctuation 15%", "congested", {"velocity_fluctuation": 0.15}),
-    ("congested, noise: 2% speed, 0.05 s time", "congested", {
-        "velocity_noise": 0.02, "timestamp_noise": 0.05
-    }),
+    (
+        "congested, noise: 2% speed, 0.05 s time",
+        "congested",
+        {"velocity_noise": 0.02, "timestamp_noise": 0.05},
+    ),
     ("medium, irregular sensor spacing", "medium", {"sensor_positions": IRREGULAR}),
     ("medium, velocity fluctuation 15%", "medium", {"velocity_fluctuation": 0.15}),
     ("medium, 5% duplicated", "medium", {"duplicate_probability": 0.05}),
@@ -65,9 +69,7 @@ def main() -> None:
             assert result.metrics is not None
             scores.append(result.metrics.accuracy)
         mean, std, worst = float(np.mean(scores)), float(np.std(scores)), float(np.min(scores))
-        rows.append(
-            {"case": label, "preset": name, "overrides": overrides, "accuracies": scores}
-        )
+        rows.append({"case": label, "preset": name, "overrides": overrides, "accuracies": scores})
         print(f"| {label} | {mean:.1%} ± {std:.1%} ({worst:.0%}) | {np.median(seconds):.2f} |")
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps({"seeds": args.seeds, "rows": rows}, indent=2) + "\n")

@@ -84,9 +84,10 @@ def main() -> None:
     n_detections = 1_000
     while n_detections <= args.max_detections:
         n_targets = n_detections // SENSORS
+        command = [sys.executable, __file__, "--one", str(n_targets)]
+        command += ["--repeats", str(args.repeats), "--seed", str(args.seed)]
         done = subprocess.run(
-            [sys.executable, __file__, "--one", str(n_targets), "--repeats", str(args.repeats)]
-            + ["--seed", str(args.seed)],
+            command,
             check=True,
             capture_output=True,
             text=True,

@@ -62,7 +62,9 @@ def test_one_detection_per_sensor_per_target():
     ).detections
     groups = grouping(d)
     assigned = groups >= 0
-    pairs = np.column_stack([groups[assigned], np.unique(d.position, return_inverse=True)[1][assigned]])
+    pairs = np.column_stack(
+        [groups[assigned], np.unique(d.position, return_inverse=True)[1][assigned]]
+    )
     assert np.unique(pairs, axis=0).shape[0] == pairs.shape[0]
 
 
@@ -88,7 +90,9 @@ def test_duplicates_join_no_target_twice_and_start_no_track():
 
 
 def test_shuffled_and_relabelled_input_gives_the_same_grouping():
-    d = simulate(preset("congested", miss_probability=0.05, false_alarm_rate=0.05), seed=1).detections
+    d = simulate(
+        preset("congested", miss_probability=0.05, false_alarm_rate=0.05), seed=1
+    ).detections
     groups = grouping(d)
     order = np.random.default_rng(0).permutation(len(d))
     shuffled = d.take(order)

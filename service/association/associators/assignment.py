@@ -26,14 +26,15 @@ associator uses that structure:
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 import numpy.typing as npt
 from pydantic import Field
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse.csgraph import connected_components, min_weight_full_bipartite_matching
 
 from service.association.associators.base import Associator, AssociatorParams, Progress
 from service.association.detections import Detections, FloatArray, IntArray
@@ -48,6 +49,7 @@ PRIOR_LOG_RANGE = float(np.log(10.0))
 PRIOR_BIN = 0.05
 PRIOR_SAMPLE = 400
 TIME_HUBER = 3.0
+MATCH_BATCH = 2000  # edges per sparse assignment: small enough to stay linear, few enough calls
 PAIR_FIELDS = (
     "a",
     "b",
@@ -69,9 +71,10 @@ class AssignmentParams(AssociatorParams):
     gate_cost: float = Field(
         default=16.0,
         gt=0,
-        description="Largest cost of a link (a sum of squared standardised residuals, so 16 is "
-        "about four standard deviations). Lower leaves more detections as separate tracks; "
-        "higher links more boldly.",
+        description="Largest cost of a link (a sum of squared standardised residuals, robust in "
+        "the tails, so 16 is about four standard deviations); leaving a detection unlinked "
+        "costs half of it. Lower leaves more detections as separate tracks; higher links more "
+        "boldly.",
     )
     miss_cost: float = Field(
         default=4.0,
@@ -154,8 +157,9 @@ class AssignmentParams(AssociatorParams):
     min_segment_samples: int = Field(
         default=8,
         ge=2,
-        description="Links a segment needs before its own model replaces the pooled one of "
-        "all segments.",
+        description="Links at which a segment's own measured spreads weigh as much as those "
+        "pooled over all segments (fewer links: the pooled ones dominate). Higher makes the "
+        "learned model smoother across segments.",
     )
     min_track_length: int = Field(
         default=2,
@@ -516,9 +520,11 @@ def match(
     """Minimum-cost one-to-one matching of the (left, right, cost) edges, every node free to stay
     unmatched at cost gate / 2 (so an edge is taken only if it beats leaving both ends alone).
 
-    Sparse LAPJVsp on the graph augmented with one dummy node per real node: left l may match its
-    own dummy (stay alone), right r may match its own dummy, and dummies match each other along
-    every real edge so a full matching always exists.
+    The gated graph falls apart into many small connected components (targets far apart in
+    time never compete), which are solved independently: an isolated edge is simply taken, the
+    others are solved a batch of components at a time, which keeps every sparse assignment small
+    (LAPJVsp's shortest-path phase costs in proportion to the graph for every free row, so one
+    huge call would be quadratic).
     """
     keep = cost < gate
     left, right, cost = left[keep], right[keep], cost[keep]
@@ -527,14 +533,49 @@ def match(
     lu, li = np.unique(left, return_inverse=True)
     ru, ri = np.unique(right, return_inverse=True)
     n_l, n_r = lu.size, ru.size
-    half = gate / 2.0
+    graph = coo_matrix((np.ones(li.size), (li, n_l + ri)), shape=(n_l + n_r, n_l + n_r))
+    n_parts, part = connected_components(graph, directed=False)
+    edge_part = part[li]
+    edges_in_part = np.bincount(edge_part, minlength=n_parts)
+    alone = edges_in_part[edge_part] == 1
+    taken_l = [li[alone]]
+    taken_r = [ri[alone]]
+    shared = np.flatnonzero(~alone)
+    if shared.size:
+        # Batches of whole components, about MATCH_BATCH edges each.
+        order = shared[np.argsort(edge_part[shared], kind="stable")]
+        parts = edge_part[order]
+        boundary = np.flatnonzero(np.r_[True, parts[1:] != parts[:-1]])
+        batch_of_part = np.cumsum(edges_in_part[parts[boundary]]) // MATCH_BATCH
+        batch = np.repeat(batch_of_part, np.diff(np.r_[boundary, order.size]))
+        cuts = np.flatnonzero(np.r_[True, batch[1:] != batch[:-1], True])
+        for lo, hi in itertools.pairwise(cuts):
+            block = order[lo:hi]
+            bl, br = _match_block(li[block], ri[block], cost[block], gate / 2.0)
+            taken_l.append(bl)
+            taken_r.append(br)
+    return lu[np.concatenate(taken_l)], ru[np.concatenate(taken_r)]
+
+
+def _match_block(
+    left: IntArray, right: IntArray, cost: FloatArray, alone: float
+) -> tuple[IntArray, IntArray]:
+    """Exact min-cost matching of some edges, each node free to stay unmatched at cost `alone`.
+
+    Sparse LAPJVsp on the graph augmented with one dummy node per real node: left l may match its
+    own dummy (stay alone), right r may match its own dummy, and dummies match each other along
+    every real edge so a full matching always exists.
+    """
+    lu, li = np.unique(left, return_inverse=True)
+    ru, ri = np.unique(right, return_inverse=True)
+    n_l, n_r = lu.size, ru.size
     # rows: real lefts [0, n_l), dummies of rights [n_l, n_l + n_r)
     # cols: real rights [0, n_r), dummies of lefts [n_r, n_r + n_l)
     rows = np.concatenate([li, np.arange(n_l), n_l + np.arange(n_r), n_l + ri])
     cols = np.concatenate([ri, n_r + np.arange(n_l), np.arange(n_r), n_r + li])
     # All weights shifted by +1: LAPJVsp needs non-zero weights, a full matching has a fixed
     # number of edges, so the shift changes nothing.
-    weights = np.concatenate([cost, np.full(n_l, half), np.full(n_r, half), np.zeros(ri.size)])
+    weights = np.concatenate([cost, np.full(n_l, alone), np.full(n_r, alone), np.zeros(ri.size)])
     graph = csr_matrix((weights + 1.0, (rows, cols)), shape=(n_l + n_r, n_r + n_l))
     graph.sum_duplicates()
     row, col = min_weight_full_bipartite_matching(graph)
