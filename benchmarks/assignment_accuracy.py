@@ -20,7 +20,7 @@ from service.association import associate
 from service.simulation import preset, simulate
 
 RESULTS = Path(__file__).parent / "results" / "assignment_accuracy.json"
-FAULTS = {"miss_probability": 0.05, "false_alarm_rate": 0.05}
+FAULTS: dict[str, object] = {"miss_probability": 0.05, "false_alarm_rate": 0.05}
 IRREGULAR = [0.0, 40.0, 260.0, 300.0, 620.0, 700.0, 1150.0, 1180.0, 1500.0, 1530.0]
 
 CASES: list[tuple[str, str, dict[str, object]]] = [

@@ -23,8 +23,8 @@ def mean_accuracy(name: str, seeds: range, **overrides: object) -> float:
     return float(np.mean(scores))
 
 
-def grouping(d: Detections, **params: object) -> np.ndarray:
-    return AssignmentAssociator(**params).group(d.without_labels())
+def grouping(d: Detections) -> np.ndarray:
+    return AssignmentAssociator().group(d.without_labels())
 
 
 def test_is_the_default_associator():
