@@ -914,11 +914,16 @@ class AssignmentAssociator(Associator):
         model = prior
         leader = duplicate_followers(s, p)
         rounds = p.em_rounds + 1
+        # Every pass (a linking round or a re-pairing sweep) visits each sensor once and costs
+        # about the same: progress is the share of passes done.
+        passes = rounds + p.refine_sweeps
         track = np.zeros(0, dtype=np.int64)
         for r in range(rounds):
-            track = build_tracks(s, model, p, leader, progress, r / rounds, 1.0 / rounds)
+            track = build_tracks(s, model, p, leader, progress, r / passes, 1.0 / passes)
             if r + 1 < rounds:
                 model = learn_segments(s, track, p, prior)
-        for _ in range(p.refine_sweeps):
+        for sweep in range(p.refine_sweeps):
             track = refine_boundaries(s, model, p, track)
+            if progress:
+                progress((rounds + sweep + 1) / passes)
         return finish(s, model, p, track)
