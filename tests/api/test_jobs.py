@@ -117,11 +117,21 @@ def test_a_job_over_several_batches_or_a_time_window(
     )
     by_batches = client.post(
         "/v1/jobs",
-        json={"batch_ids": [first["id"], second["id"]], "params": {"n_targets": 2}},
+        json={
+            "batch_ids": [first["id"], second["id"]],
+            "associator": "kmeans++",
+            "params": {"n_targets": 2},
+        },
     )
     window = client.post(
         "/v1/jobs",
-        json={"deployment_id": deployment["id"], "start": 0, "end": 12, "params": {"n_targets": 2}},
+        json={
+            "deployment_id": deployment["id"],
+            "start": 0,
+            "end": 12,
+            "associator": "kmeans++",
+            "params": {"n_targets": 2},
+        },
     )
     assert by_batches.status_code == window.status_code == 202
     assert worker.run_once() and worker.run_once()
