@@ -2,15 +2,24 @@
 
 from __future__ import annotations
 
+from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 
-class BodyTooLarge(Exception):
-    """The body exceeds the limit; answered as 413 naming the limit."""
+class BodyTooLarge(HTTPException):
+    """The body exceeds the limit; answered as 413 naming the limit.
+
+    An HTTPException, because FastAPI re-raises those from its own body reading (and turns any
+    other exception there into a 400), so a chunked body that outgrows the limit while FastAPI
+    reads it is still a 413.
+    """
 
     def __init__(self, limit: int) -> None:
-        super().__init__(f"the request body is larger than the limit of {limit} bytes")
+        super().__init__(413, f"the request body is larger than the limit of {limit} bytes")
         self.limit = limit
+
+    def __str__(self) -> str:
+        return str(self.detail)
 
 
 class BodyLimitMiddleware:
