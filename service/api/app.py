@@ -91,14 +91,15 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
 
     app.middleware("http")(app.state.metrics.middleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
-    for module in (deployments, batches, jobs, associators, simulations):
+    protected = [m.router for m in (deployments, batches, jobs, associators, simulations)]
+    check_policy_covers(protected)
+    for router in protected:
         app.include_router(
-            module.router,
+            router,
             dependencies=[Depends(authorize)],
             responses=problem_responses(401, 403, 429),
         )
     app.include_router(health.router)  # open: probes and Prometheus carry no key
-    check_policy_covers(app)
     app.openapi = lambda: _openapi_with_batch_body(app)  # type: ignore[method-assign]
     return app
 

@@ -16,11 +16,11 @@ that a gateway can post and collect its association with one key.
 from __future__ import annotations
 
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Annotated
 
-from fastapi import Depends, FastAPI, Request, Security
+from fastapi import APIRouter, Depends, Request, Security
 from fastapi.routing import APIRoute
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy import select
@@ -132,11 +132,12 @@ POLICY: dict[tuple[str, str], Rule] = {
 }
 
 
-def check_policy_covers(app: FastAPI) -> None:
-    """Raise when a /v1 route of `app` has no rule in POLICY (it would be unreachable)."""
+def check_policy_covers(routers: Iterable[APIRouter]) -> None:
+    """Raise when a /v1 route of `routers` has no rule in POLICY (it would be unreachable)."""
     missing = [
         f"{method} {route.path}"
-        for route in app.routes
+        for router in routers
+        for route in router.routes
         if isinstance(route, APIRoute) and route.path.startswith("/v1")
         for method in sorted(route.methods or ())
         if (method, route.path) not in POLICY
