@@ -5,19 +5,17 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from fastapi import Depends, FastAPI, Request
+from fastapi import Depends, FastAPI
 from fastapi.openapi.utils import get_openapi
-from fastapi.responses import JSONResponse
 from fastapi.routing import APIRoute
 from sqlalchemy import Engine
 
 from service import __version__
 from service.api.auth import authorize, check_policy_covers
-from service.api.bodylimit import BodyLimitMiddleware, BodyTooLarge
+from service.api.bodylimit import BodyLimitMiddleware
 from service.api.errors import (
     ProblemDetail,
     install_error_handlers,
-    problem_response,
     problem_responses,
 )
 from service.api.idempotency import forgetting_expired_keys
@@ -80,14 +78,6 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
     )
 
     install_error_handlers(app)
-
-    @app.exception_handler(BodyTooLarge)
-    async def _too_large(request: Request, exc: BodyTooLarge) -> JSONResponse:
-        return problem_response(
-            request,
-            413,
-            f"{exc} (ROADLINK_MAX_BODY_BYTES); split the batch into smaller ones",
-        )
 
     app.middleware("http")(app.state.metrics.middleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
