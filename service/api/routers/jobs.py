@@ -137,7 +137,7 @@ def list_jobs(
     session: SessionDep,
     deployment_id: uuid.UUID | None = Query(default=None, description="Only this deployment's."),
     limit: int = Query(default=100, ge=1, le=1000, description="Page size."),
-    offset: int = Query(default=0, ge=0, description="Jobs to skip."),
+    offset: int = Query(default=0, ge=0, le=2**31 - 1, description="Jobs to skip."),
 ) -> list[JobRead]:
     """Jobs, newest first."""
     found = repository.list_jobs(session, deployment_id=deployment_id, limit=limit, offset=offset)
