@@ -47,6 +47,7 @@ def test_no_5xx_and_no_response_outside_the_schema(live_server: LiveServer) -> N
             "--workers",
             "1",
         ],
+        cwd=live_server.directory,  # schemathesis keeps its state in ./.schemathesis
         capture_output=True,
         text=True,
         timeout=240,
