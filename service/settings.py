@@ -7,6 +7,7 @@ the API on 127.0.0.1:8000 and one worker per core.
 from __future__ import annotations
 
 import os
+from typing import Literal
 
 from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -62,6 +63,30 @@ class Settings(BaseSettings):
         default=60.0, ge=0, description="Longest `?wait=` a result request may ask for."
     )
     log_level: str = Field(default="info", description="Log level of the API and the workers.")
+    auth: Literal["required", "disabled"] = Field(
+        default="required",
+        description="`required`: every /v1 request needs an API key (`Authorization: Bearer`). "
+        "`disabled` is for local development only; `serve` refuses it on a non-loopback host.",
+    )
+    rate_limit_per_second: float = Field(
+        default=20.0,
+        ge=0,
+        description="Requests per second each API key may sustain, per API replica (0 = no limit).",
+    )
+    rate_limit_burst: int = Field(
+        default=100,
+        ge=1,
+        description="Requests an API key may send at once before the rate "
+        "limit applies (the token bucket's size).",
+    )
+    max_batch_detections: int = Field(
+        default=1_000_000, gt=0, description="Most detections one batch may hold (422 beyond)."
+    )
+    idempotency_hours: float = Field(
+        default=24.0,
+        ge=24.0,
+        description="How long an Idempotency-Key is remembered (at least 24 hours).",
+    )
 
     @model_validator(mode="after")
     def _heartbeat_within_lease(self) -> Settings:

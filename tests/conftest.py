@@ -14,13 +14,23 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
 from service.api import create_app
-from service.db.engine import make_engine
+from service.db.apikeys import create_api_key
+from service.db.engine import make_engine, make_session_factory, transaction
 from service.db.migrate import upgrade_to_head
+from service.db.models import ApiKeyScope
 from service.queue.worker import Worker
 from service.settings import Settings
 
 POSTGRES_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
-TABLES_CHILD_FIRST = ("job_result", "detection", "batch", "job", "deployment")
+TABLES_CHILD_FIRST = (
+    "job_idempotency_key",
+    "api_key",
+    "job_result",
+    "detection",
+    "batch",
+    "job",
+    "deployment",
+)
 
 
 def postgres_answers() -> bool:
@@ -121,9 +131,18 @@ def settings(database_url: str) -> Settings:
 
 
 @pytest.fixture
-def client(settings: Settings, engine: Engine) -> Iterator[TestClient]:
-    """The API in process, on the test database."""
-    with TestClient(create_app(settings, engine=engine)) as test_client:
+def admin_key(engine: Engine) -> str:
+    """A new admin API key in the (emptied) test database."""
+    with transaction(make_session_factory(engine)) as session:
+        return create_api_key(session, scope=ApiKeyScope.ADMIN, name="tests").key
+
+
+@pytest.fixture
+def client(settings: Settings, engine: Engine, admin_key: str) -> Iterator[TestClient]:
+    """The API in process, on the test database, sending an admin key with every request."""
+    with TestClient(
+        create_app(settings, engine=engine), headers={"Authorization": f"Bearer {admin_key}"}
+    ) as test_client:
         yield test_client
 
 

@@ -5,16 +5,22 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI
 from fastapi.openapi.utils import get_openapi
-from fastapi.responses import JSONResponse
 from fastapi.routing import APIRoute
 from sqlalchemy import Engine
 
 from service import __version__
-from service.api.bodylimit import BodyLimitMiddleware, BodyTooLarge
-from service.api.errors import ProblemDetail, install_error_handlers, problem_response
+from service.api.auth import authorize, check_policy_covers
+from service.api.bodylimit import BodyLimitMiddleware
+from service.api.errors import (
+    ProblemDetail,
+    install_error_handlers,
+    problem_responses,
+)
+from service.api.idempotency import forgetting_expired_keys
 from service.api.metrics import ApiMetrics
+from service.api.ratelimit import TokenBuckets
 from service.api.routers import associators, batches, deployments, health, jobs, simulations
 from service.api.schemas import BatchCreate
 from service.db.engine import make_engine, make_session_factory
@@ -27,6 +33,9 @@ vehicle, and scores the grouping when true labels are given.
 Post detections to a deployment as a batch (JSON or CSV), run a job over one or more batches or
 a time window, and read its result. Errors are RFC 9457 problem details naming the field and
 the row at fault.
+
+Every /v1 route needs an API key, `Authorization: Bearer <key>` (create one with
+`roadlink keys create --scope admin|read|ingest`); the health routes are open.
 """
 
 TAGS = [
@@ -57,26 +66,30 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
         description=DESCRIPTION,
         openapi_tags=TAGS,
         generate_unique_id_function=operation_id,
+        lifespan=forgetting_expired_keys,
     )
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessions = make_session_factory(engine)
     app.state.metrics = ApiMetrics(app.state.sessions)
+    limited = settings.auth == "required" and settings.rate_limit_per_second > 0
+    app.state.rate_limits = (
+        TokenBuckets(settings.rate_limit_per_second, settings.rate_limit_burst) if limited else None
+    )
 
     install_error_handlers(app)
 
-    @app.exception_handler(BodyTooLarge)
-    async def _too_large(request: Request, exc: BodyTooLarge) -> JSONResponse:
-        return problem_response(
-            request,
-            413,
-            f"{exc}; (ROADLINK_MAX_BODY_BYTES); split the batch into smaller ones",
-        )
-
     app.middleware("http")(app.state.metrics.middleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
-    for module in (deployments, batches, jobs, associators, simulations, health):
-        app.include_router(module.router)
+    protected = [m.router for m in (deployments, batches, jobs, associators, simulations)]
+    check_policy_covers(protected)
+    for router in protected:
+        app.include_router(
+            router,
+            dependencies=[Depends(authorize)],
+            responses=problem_responses(401, 403, 429),
+        )
+    app.include_router(health.router)  # open: probes and Prometheus carry no key
     app.openapi = lambda: _openapi_with_batch_body(app)  # type: ignore[method-assign]
     return app
 

@@ -5,17 +5,16 @@ from __future__ import annotations
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 
-class BodyTooLarge(Exception):
-    """The body exceeds the limit; answered as 413 naming the limit."""
-
-    def __init__(self, limit: int) -> None:
-        super().__init__(f"the request body is larger than the limit of {limit} bytes")
-        self.limit = limit
-
-
 class BodyLimitMiddleware:
     """Rejects a body whose Content-Length exceeds `limit`, and stops a chunked body that
-    grows past it while the handler reads it."""
+    grows past it while the handler reads it.
+
+    A chunked body is answered 413 from inside `receive`, the moment it passes the limit; the
+    app is then told the client has gone (`http.disconnect`), whatever it sends afterwards is
+    dropped, and whatever it raises about the missing body is swallowed. Raising from `receive`
+    instead would not work: Starlette's BaseHTTPMiddleware reads the body in a task group, which
+    turns the exception into an ExceptionGroup and the answer into a 500.
+    """
 
     def __init__(self, app: ASGIApp, limit: int) -> None:
         self.app = app
@@ -30,17 +29,37 @@ class BodyLimitMiddleware:
                 await self._refuse(scope, send)
                 return
         received = 0
+        refused = False
+        started = False
 
         async def limited_receive() -> Message:
-            nonlocal received
+            nonlocal received, refused
+            if refused:
+                return {"type": "http.disconnect"}
             message = await receive()
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 if received > self.limit:
-                    raise BodyTooLarge(self.limit)
+                    refused = True
+                    if not started:
+                        await self._refuse(scope, send)
+                    return {"type": "http.disconnect"}
             return message
 
-        await self.app(scope, limited_receive, send)
+        async def guarded_send(message: Message) -> None:
+            nonlocal started
+            if refused:
+                return  # the 413 has been sent; the app's own answer goes nowhere
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, limited_receive, guarded_send)
+        except Exception:
+            if not refused:
+                raise
+            # The app failed on the body it never got whole; the client has its 413.
 
     async def _refuse(self, scope: Scope, send: Send) -> None:
         from service.api.errors import PROBLEM_MEDIA_TYPE, ProblemDetail

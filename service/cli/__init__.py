@@ -15,4 +15,4 @@ app = typer.Typer(
 from service.cli import analysis, reproduce  # noqa: E402,F401
 
 __all__ = ["app"]
-from service.cli import server  # noqa: E402,F401
+from service.cli import keys, server  # noqa: E402,F401

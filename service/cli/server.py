@@ -103,10 +103,20 @@ def serve_command(
     from service.api import create_app
 
     settings = _settings(host=host, port=port, workers=workers)
+    if settings.auth == "disabled" and not is_loopback(settings.host):
+        typer.echo(
+            f"error: ROADLINK_AUTH=disabled turns API keys off, which is only for local "
+            f"development: it is refused on {settings.host}, which other machines can reach. "
+            "Listen on 127.0.0.1 (--host 127.0.0.1), or create keys with `roadlink keys create` "
+            "and leave ROADLINK_AUTH unset.",
+            err=True,
+        )
+        raise typer.Exit(code=2)
     logging.basicConfig(
         level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(message)s"
     )
     _migrate(settings)
+    _say_how_to_get_a_key(settings)
     pool = WorkerPool(settings, settings.workers)
     pool.start()
     log.info("started %d worker process(es) on %s", settings.workers, _safe_url(settings))
@@ -170,6 +180,42 @@ def openapi_command(
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(text, encoding="utf-8")
     typer.echo(f"wrote {output}", err=True)
+
+
+def is_loopback(host: str) -> bool:
+    """True when `host` is reachable from this machine only (127.0.0.0/8, ::1, localhost)."""
+    import ipaddress
+
+    if host.strip("[]").lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:  # a host name other than localhost may resolve anywhere
+        return False
+
+
+def _say_how_to_get_a_key(settings: Settings) -> None:
+    """On a database without an admin key, say how to create the first one."""
+    from service.db.apikeys import has_admin_key
+    from service.db.engine import make_engine, make_session_factory
+
+    if settings.auth == "disabled":
+        log.warning("ROADLINK_AUTH=disabled: every /v1 route is open (local development only)")
+        return
+    engine = make_engine(settings.database_url)
+    try:
+        with make_session_factory(engine)() as session:
+            found = has_admin_key(session)
+    finally:
+        engine.dispose()
+    if not found:
+        typer.echo(
+            "No API key exists yet, and every /v1 request needs one. Create the first (it is "
+            "printed once) with:\n"
+            "    roadlink keys create --scope admin\n"
+            "and send it as `Authorization: Bearer <key>`.",
+            err=True,
+        )
 
 
 def _safe_url(settings: Settings) -> str:

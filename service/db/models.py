@@ -200,3 +200,44 @@ class JobResult(Base):
     matrix_csv: Mapped[str] = mapped_column(Text)
     accuracy: Mapped[float | None] = mapped_column(Float)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class ApiKeyScope(enum.StrEnum):
+    """What an API key may do: `ingest` posts batches to the deployments it names, `read` reads
+    everything and runs jobs, `admin` does all that and manages deployments and keys."""
+
+    INGEST = "ingest"
+    READ = "read"
+    ADMIN = "admin"
+
+
+class ApiKey(Base):
+    """A bearer key. Only its sha256 is stored; the key itself is shown once, when created."""
+
+    __tablename__ = "api_key"
+
+    id: Mapped[uuid.UUID] = mapped_column(primary_key=True, default=uuid.uuid4)
+    # The public part of the key (`rl_<prefix>_<secret>`), to find the row and to name the key in
+    # logs and listings without revealing anything that authenticates.
+    prefix: Mapped[str] = mapped_column(String(16), unique=True)
+    secret_sha256: Mapped[str] = mapped_column(String(64))
+    name: Mapped[str | None] = mapped_column(String(200))
+    scope: Mapped[str] = mapped_column(String(20))
+    # For `ingest` keys: the deployment ids (strings) it may post to; null for the other scopes.
+    deployment_ids: Mapped[list[str] | None] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column()
+
+
+class JobIdempotencyKey(Base):
+    """The job a `POST /v1/jobs` with an Idempotency-Key created, so that a retry gets that job
+    back instead of a second one. Keys are scoped to the API key that sent them."""
+
+    __tablename__ = "job_idempotency_key"
+
+    # The API key's id, or "anonymous" when authentication is disabled.
+    principal: Mapped[str] = mapped_column(String(64), primary_key=True)
+    idempotency_key: Mapped[str] = mapped_column(String(200), primary_key=True)
+    request_sha256: Mapped[str] = mapped_column(String(64))
+    job_id: Mapped[uuid.UUID] = mapped_column(ForeignKey("job.id", ondelete="CASCADE"))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)

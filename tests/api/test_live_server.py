@@ -14,6 +14,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import NamedTuple
 
 import httpx
 import pytest
@@ -34,9 +35,18 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+class LiveServer(NamedTuple):
+    url: str
+    key: str  # an admin API key, made with `roadlink keys create` as the docs say
+
+    @property
+    def headers(self) -> dict[str, str]:
+        return {"Authorization": f"Bearer {self.key}"}
+
+
 @pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """`roadlink serve --workers 1` on a fresh SQLite file (it migrates the file itself)."""
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
+    """`roadlink serve --workers 1` on a fresh SQLite file, and an admin key for it."""
     directory = tmp_path_factory.mktemp("live")
     port = _free_port()
     env = {
@@ -46,6 +56,16 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         "ROADLINK_MAX_BODY_BYTES": str(MAX_BODY_BYTES),
         "ROADLINK_LOG_LEVEL": "warning",
     }
+    created = subprocess.run(
+        [sys.executable, "-m", "service.cli", "keys", "create", "--scope", "admin"],
+        cwd=directory,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert created.returncode == 0, created.stderr
+    key = created.stdout.strip()
     log = (directory / "serve.log").open("w")
     process = subprocess.Popen(
         [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", "1"],
@@ -66,7 +86,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
                 pass
             assert time.monotonic() < deadline, "the server did not become ready"
             time.sleep(0.1)
-        yield url
+        yield LiveServer(url, key)
     finally:
         process.send_signal(signal.SIGINT)  # as Ctrl-C: the API and its workers stop
         try:
@@ -77,10 +97,10 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         log.close()
 
 
-def test_a_paper_sized_batch_over_http(server: str) -> None:
+def test_a_paper_sized_batch_over_http(server: LiveServer) -> None:
     detections = simulate(preset("large"), seed=21).detections
     text = write_detections_csv(detections)
-    with httpx.Client(base_url=server, timeout=30) as http:
+    with httpx.Client(base_url=server.url, headers=server.headers, timeout=30) as http:
         deployment = http.post("/v1/deployments", json={"name": "live"}).json()
         batch = http.post(
             f"/v1/deployments/{deployment['id']}/batches",
@@ -105,7 +125,7 @@ def test_a_paper_sized_batch_over_http(server: str) -> None:
         assert 'roadlink_jobs{state="succeeded"} 1.0' in metrics
 
 
-def test_a_generated_client_drives_the_server(server: str, tmp_path: Path) -> None:
+def test_a_generated_client_drives_the_server(server: LiveServer, tmp_path: Path) -> None:
     config = tmp_path / "config.yaml"
     config.write_text("package_name_override: roadlink_client\npost_hooks: []\n")
     generated = subprocess.run(
@@ -140,7 +160,10 @@ def test_a_generated_client_drives_the_server(server: str, tmp_path: Path) -> No
             JobCreate,
         )
 
-        client = client_module.Client(base_url=server, timeout=httpx.Timeout(30))
+        # The spec declares the bearer scheme, so the generated client has AuthenticatedClient.
+        client = client_module.AuthenticatedClient(
+            base_url=server.url, token=server.key, timeout=httpx.Timeout(30)
+        )
         deployment = deployments_create.sync(
             client=client, body=DeploymentCreate(name="generated client")
         )

@@ -239,6 +239,12 @@ def test_migrate_serve_and_work_against_postgres(clean_install, request, tmp_pat
 
     migrated = run([clean_install.roadlink, "migrate"], timeout=120, env=environment)
     assert migrated.returncode == 0, migrated.stderr
+    # Every /v1 route needs an API key; the first is made on the database, as the docs say.
+    created = run(
+        [clean_install.roadlink, "keys", "create", "--scope", "admin"], timeout=60, env=environment
+    )
+    assert created.returncode == 0, created.stderr
+    key = created.stdout.strip()
 
     # The compose topology: an API that runs no jobs, and a separate worker process.
     port = free_port()
@@ -276,7 +282,9 @@ def test_migrate_serve_and_work_against_postgres(clean_install, request, tmp_pat
             }
             for i in range(len(detections))
         ]
-        with httpx.Client(base_url=base, timeout=30) as client:
+        with httpx.Client(
+            base_url=base, headers={"Authorization": f"Bearer {key}"}, timeout=30
+        ) as client:
             created = client.post("/v1/deployments", json={"name": "deploy-test"})
             assert created.status_code == 201, created.text
             deployment = identifier(created.json(), "deployment")

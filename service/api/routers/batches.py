@@ -108,6 +108,14 @@ async def create_batch(
         else:
             detections, associate = parse_json_batch(body, deployment.sensors)
             source = "json"
+        if len(detections) > settings.max_batch_detections:
+            raise ApiProblem(
+                422,
+                f"the batch has {len(detections)} detections, more than the "
+                f"{settings.max_batch_detections} one batch may hold "
+                "(ROADLINK_MAX_BATCH_DETECTIONS); split it into smaller batches",
+                errors=[ProblemItem(field="detections", message="too many detections")],
+            )
         batch = store_batch(
             session,
             settings=settings,

@@ -43,7 +43,7 @@ def create_deployment(body: DeploymentCreate, session: SessionDep) -> Deployment
 def list_deployments(
     session: SessionDep,
     limit: int = Query(default=100, ge=1, le=1000, description="Page size."),
-    offset: int = Query(default=0, ge=0, description="Deployments to skip."),
+    offset: int = Query(default=0, ge=0, le=2**31 - 1, description="Deployments to skip."),
 ) -> list[DeploymentRead]:
     """Deployments, oldest first."""
     found = repository.list_deployments(session, limit=limit, offset=offset)

@@ -11,8 +11,10 @@ from fastapi import APIRouter, Query, Request, Response
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.concurrency import run_in_threadpool
 
+from service.api.auth import principal_of
 from service.api.deps import SessionDep, SessionFactoryDep, SettingsDep
 from service.api.errors import ApiProblem, ProblemItem, problem_responses
+from service.api.idempotency import IdempotencyKeyHeader, commit_job, replayed_job, request_sha256
 from service.api.routers.batches import checked_associate
 from service.api.schemas import AssociateRequest, AssociationResultRead, JobCreate, JobRead
 from service.db import repository
@@ -39,9 +41,28 @@ MATRIX_CSV_EXAMPLE = (
     responses=problem_responses(404, 413, 422),
     summary="Enqueue an association job",
 )
-def create_job(body: JobCreate, session: SessionDep, settings: SettingsDep) -> JobRead:
+def create_job(
+    body: JobCreate,
+    request: Request,
+    response: Response,
+    session: SessionDep,
+    settings: SettingsDep,
+    idempotency_key: IdempotencyKeyHeader = None,
+) -> JobRead:
     """Associate one batch, several batches of one deployment, or a deployment's detections in
-    the time window [start, end) (either end may be left open)."""
+    the time window [start, end) (either end may be left open). With an Idempotency-Key, a retry
+    returns the job the first request created."""
+    principal, digest = principal_of(request).id, request_sha256(body)
+    if idempotency_key is not None:
+        earlier = replayed_job(
+            session,
+            principal=principal,
+            idempotency_key=idempotency_key,
+            digest=digest,
+            response=response,
+        )
+        if earlier is not None:
+            return earlier
     params = checked_associate(AssociateRequest(associator=body.associator, params=body.params))
     selection: dict[str, Any]
     if body.deployment_id is not None:
@@ -94,8 +115,15 @@ def create_job(body: JobCreate, session: SessionDep, settings: SettingsDep) -> J
         params=params,
         max_attempts=settings.max_attempts,
     )
-    session.commit()
-    return JobRead.model_validate(job)
+    replay = commit_job(
+        session,
+        job_id=job.id,
+        principal=principal,
+        idempotency_key=idempotency_key,
+        digest=digest,
+        response=response,
+    )
+    return replay or JobRead.model_validate(job)
 
 
 @router.get(
@@ -109,7 +137,7 @@ def list_jobs(
     session: SessionDep,
     deployment_id: uuid.UUID | None = Query(default=None, description="Only this deployment's."),
     limit: int = Query(default=100, ge=1, le=1000, description="Page size."),
-    offset: int = Query(default=0, ge=0, description="Jobs to skip."),
+    offset: int = Query(default=0, ge=0, le=2**31 - 1, description="Jobs to skip."),
 ) -> list[JobRead]:
     """Jobs, newest first."""
     found = repository.list_jobs(session, deployment_id=deployment_id, limit=limit, offset=offset)
