@@ -29,6 +29,7 @@ from service.db.engine import make_engine, make_session_factory, transaction
 from service.db.migrate import upgrade_to_head
 from service.db.models import Job, JobResult
 from service.queue import enqueue_job
+from service.queue.jobs import NOTIFY_CHANNEL
 from service.queue.worker import run_worker_process
 from service.settings import Settings
 from service.simulation import preset, simulate
@@ -39,7 +40,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.postgres]
 
 WORKERS = 4
 JOBS = 500
-VICTIM_SECONDS = 2.0  # long enough to be caught mid-run, short enough to re-run quickly
+VICTIM_SECONDS = 3.0  # long enough to be caught mid-run, short enough to re-run quickly
 
 RECORD_TRANSITIONS = """
 CREATE TABLE test_transition (
@@ -139,6 +140,20 @@ def test_each_job_succeeds_exactly_once_across_killed_and_frozen_workers(
         process.start()
     frozen_pid: int | None = None
     try:
+
+        def listening_workers() -> bool:
+            # A worker LISTENs once it is idle with its associator process started.
+            with sessions() as session:
+                listeners = session.scalar(
+                    text(
+                        "SELECT count(*) FROM pg_stat_activity "
+                        "WHERE datname = current_database() AND query = :listen"
+                    ),
+                    {"listen": f"LISTEN {NOTIFY_CHANNEL}"},
+                )
+            return listeners == WORKERS
+
+        _wait_for(listening_workers, 60, "every worker to be ready")
         # Two slow jobs, each taken by its own worker: one worker is killed, one frozen.
         killed_job, frozen_job = enqueue(["killed", "frozen"], VICTIM_SECONDS)
 
@@ -151,7 +166,7 @@ def test_each_job_succeeds_exactly_once_across_killed_and_frozen_workers(
             found = {job_id: owner for job_id, owner in rows if owner}
             return found if len(found) == 2 else None
 
-        running = _wait_for(owners, 60, "both slow jobs to be under way")
+        running = _wait_for(owners, VICTIM_SECONDS, "both slow jobs to be under way")
         killed_pid, frozen_pid = _worker_pid(running[killed_job]), _worker_pid(running[frozen_job])
         os.kill(killed_pid, signal.SIGKILL)
         os.kill(frozen_pid, signal.SIGSTOP)
