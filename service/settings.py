@@ -56,6 +56,12 @@ class Settings(BaseSettings):
         ge=0,
         description="Delay before a crashed job is retried (doubles per attempt).",
     )
+    job_timeout_seconds: float = Field(
+        default=600.0,
+        gt=0,
+        description="Longest a job may run: past it the job fails and its associator process is "
+        "killed, freeing the worker for the next job.",
+    )
     max_body_bytes: int = Field(
         default=64 * 1024 * 1024, gt=0, description="Largest request body accepted (413 beyond)."
     )

@@ -147,6 +147,8 @@ def client(settings: Settings, engine: Engine, admin_key: str) -> Iterator[TestC
 
 
 @pytest.fixture
-def worker(settings: Settings, engine: Engine) -> Worker:
+def worker(settings: Settings, engine: Engine) -> Iterator[Worker]:
     """A worker on the test database, run step by step (`run_once`) by the test."""
-    return Worker(settings, engine=engine)
+    worker = Worker(settings, engine=engine)
+    yield worker
+    worker.close()

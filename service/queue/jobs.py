@@ -3,18 +3,28 @@
 Delivery is at least once: a worker that loses its lease (it stalled, or the job was cancelled)
 can no longer change the job, because every transition of a running job requires
 `state = 'running' AND lease_owner = :me`.
+
+Times that decide who may run a job (run_after, lease expiry, rescue) come from one clock: the
+database's `now()` on PostgreSQL, where workers and API replicas run on several hosts whose clocks
+drift apart; this host's clock on SQLite, which is embedded and so shared by processes of one host.
+
+Notifications: on PostgreSQL a NOTIFY on `NOTIFY_CHANNEL` (a job is runnable) or
+`FINISHED_CHANNEL` (a job finished) is sent in the transaction that makes it true, so it is
+delivered at commit and never on rollback. On SQLite the same news reaches the threads of this
+process through in-process signals fired after the commit.
 """
 
 from __future__ import annotations
 
 import threading
 import uuid
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
 import orjson
-from sqlalchemy import select, text, update
+from sqlalchemy import event, func, select, text, update
 from sqlalchemy.orm import Session
 
 from service.association.result import AssociationResult
@@ -23,9 +33,93 @@ from service.db.models import Job, JobResult, JobState, utcnow
 NOTIFY_CHANNEL = "roadlink_jobs"
 """PostgreSQL channel a NOTIFY is sent on, in the enqueueing transaction, for every new job."""
 
+FINISHED_CHANNEL = "roadlink_jobs_finished"
+"""PostgreSQL channel told, in the finishing transaction, the id of every job that finished
+(succeeded, failed or cancelled): `?wait=` result requests listen on it."""
+
 # On SQLite there is no NOTIFY: a worker thread in the process that enqueued is woken through
 # this event; workers in other processes fall back to polling.
 local_enqueue_signal = threading.Event()
+
+# Callbacks given the ids of jobs that finished in this process (SQLite), after the commit.
+_local_finish_subscribers: set[Callable[[list[str]], None]] = set()
+_subscribers_lock = threading.Lock()
+
+_AFTER_COMMIT = "roadlink_after_commit"
+
+
+def subscribe_local_finishes(callback: Callable[[list[str]], None]) -> None:
+    """Call `callback` with job ids whenever jobs finish in a transaction of this process."""
+    with _subscribers_lock:
+        _local_finish_subscribers.add(callback)
+
+
+def unsubscribe_local_finishes(callback: Callable[[list[str]], None]) -> None:
+    """Stop calling a callback given to subscribe_local_finishes."""
+    with _subscribers_lock:
+        _local_finish_subscribers.discard(callback)
+
+
+def _is_postgres(session: Session) -> bool:
+    return session.get_bind().dialect.name == "postgresql"
+
+
+def _clock(session: Session, now: datetime | None) -> Any:
+    """The time a transition is stamped with: `now` when the caller gives one (tests), else the
+    database's clock on PostgreSQL (one clock for every host), else this host's clock."""
+    if now is not None:
+        return now
+    return func.now() if _is_postgres(session) else utcnow()
+
+
+def _after_commit(session: Session, action: Callable[[], None]) -> None:
+    """Run `action` once the session's transaction commits (never if it rolls back)."""
+    session.info.setdefault(_AFTER_COMMIT, []).append(action)
+
+
+@event.listens_for(Session, "after_commit")
+def _run_after_commit(session: Session) -> None:
+    for action in session.info.pop(_AFTER_COMMIT, []):
+        action()
+
+
+@event.listens_for(Session, "after_soft_rollback")
+def _drop_after_rollback(session: Session, _previous_transaction: Any) -> None:
+    session.info.pop(_AFTER_COMMIT, None)
+
+
+def _announce_runnable(session: Session, job_id: uuid.UUID | None) -> None:
+    """Wake idle workers when this transaction commits."""
+    if _is_postgres(session):
+        session.execute(
+            text("SELECT pg_notify(:channel, :id)"),
+            {"channel": NOTIFY_CHANNEL, "id": "" if job_id is None else str(job_id)},
+        )
+    else:
+        _after_commit(session, local_enqueue_signal.set)
+
+
+def _announce_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> None:
+    """Tell result waiters that these jobs finished, when this transaction commits."""
+    ids = [str(j) for j in job_ids]
+    if not ids:
+        return
+    if _is_postgres(session):
+        # One notification per job: a payload is limited to 8000 bytes.
+        for job_id in ids:
+            session.execute(
+                text("SELECT pg_notify(:channel, :id)"),
+                {"channel": FINISHED_CHANNEL, "id": job_id},
+            )
+        return
+
+    def tell_subscribers() -> None:
+        with _subscribers_lock:
+            subscribers = list(_local_finish_subscribers)
+        for callback in subscribers:
+            callback(ids)
+
+    _after_commit(session, tell_subscribers)
 
 
 @dataclass(frozen=True)
@@ -61,21 +155,18 @@ def enqueue_job(
         state=JobState.QUEUED.value,
         max_attempts=max_attempts,
     )
+    if _is_postgres(session):
+        # Runnable from the database's now(), the clock claims compare with, not this host's.
+        job.created_at = job.run_after = func.now()
     session.add(job)
     session.flush()
-    if session.get_bind().dialect.name == "postgresql":
-        # Delivered at commit, and never if the transaction rolls back.
-        session.execute(
-            text("SELECT pg_notify(:channel, :id)"), {"channel": NOTIFY_CHANNEL, "id": str(job.id)}
-        )
-    else:
-        local_enqueue_signal.set()
+    _announce_runnable(session, job.id)
     return job
 
 
 def has_runnable_job(session: Session, *, now: datetime | None = None) -> bool:
     """Whether a queued job is due: a read, so idle workers polling SQLite take no write lock."""
-    now = now or utcnow()
+    now = _clock(session, now)
     query = select(Job.id).where(Job.state == JobState.QUEUED.value, Job.run_after <= now).limit(1)
     return session.execute(query).first() is not None
 
@@ -92,7 +183,7 @@ def claim_next_job(
     once per candidate row, and with SKIP LOCKED each run finds another job, so one claim
     would take them all (the `=` form is evaluated once).
     """
-    now = now or utcnow()
+    now = _clock(session, now)
     candidate = (
         select(Job.id)
         .where(Job.state == JobState.QUEUED.value, Job.run_after <= now)
@@ -142,7 +233,7 @@ def heartbeat_job(
     now: datetime | None = None,
 ) -> bool:
     """Renew the lease and record progress; False when the job is no longer this worker's."""
-    now = now or utcnow()
+    now = _clock(session, now)
     statement = (
         update(Job)
         .where(_running_as(job_id, worker_id))
@@ -162,7 +253,7 @@ def complete_job(
     now: datetime | None = None,
 ) -> bool:
     """Mark the job succeeded and store its result, both or neither; False if not ours any more."""
-    now = now or utcnow()
+    now = _clock(session, now)
     statement = (
         update(Job)
         .where(_running_as(job_id, worker_id))
@@ -190,6 +281,7 @@ def complete_job(
         )
     )
     session.flush()
+    _announce_finished(session, [job_id])
     return True
 
 
@@ -205,7 +297,7 @@ def fail_job(
 ) -> JobState | None:
     """Record a failed run: queued again after a backoff while attempts remain and `retry`,
     otherwise failed. Returns the new state, or None when the job is no longer this worker's."""
-    now = now or utcnow()
+    now = _clock(session, now)
     again = retry and job.attempts < job.max_attempts
     values: dict[str, Any] = {"lease_owner": None, "lease_expires_at": None, "error": error}
     if again:
@@ -221,7 +313,10 @@ def fail_job(
     )
     if session.execute(statement).rowcount != 1:  # type: ignore[attr-defined]
         return None
-    return JobState.QUEUED if again else JobState.FAILED
+    if again:
+        return JobState.QUEUED
+    _announce_finished(session, [job.id])
+    return JobState.FAILED
 
 
 def release_job(session: Session, *, job_id: uuid.UUID, worker_id: str) -> bool:
@@ -235,15 +330,13 @@ def release_job(session: Session, *, job_id: uuid.UUID, worker_id: str) -> bool:
             lease_owner=None,
             lease_expires_at=None,
             progress=0.0,
-            run_after=utcnow(),
+            run_after=_clock(session, None),
         )
         .execution_options(synchronize_session=False)
     )
     released = session.execute(statement).rowcount == 1  # type: ignore[attr-defined]
-    if released and session.get_bind().dialect.name == "postgresql":
-        session.execute(
-            text("SELECT pg_notify(:channel, :id)"), {"channel": NOTIFY_CHANNEL, "id": str(job_id)}
-        )
+    if released:
+        _announce_runnable(session, job_id)
     return released
 
 
@@ -253,7 +346,7 @@ def cancel_job(session: Session, *, job_id: uuid.UUID, now: datetime | None = No
     A running job's worker notices at its next heartbeat or progress report, stops, and cannot
     store a result (its guarded transitions no longer match).
     """
-    now = now or utcnow()
+    now = _clock(session, now)
     statement = (
         update(Job)
         .where(Job.id == job_id, Job.state.in_([JobState.QUEUED.value, JobState.RUNNING.value]))
@@ -265,15 +358,18 @@ def cancel_job(session: Session, *, job_id: uuid.UUID, now: datetime | None = No
         )
         .execution_options(synchronize_session=False)
     )
-    return session.execute(statement).rowcount == 1  # type: ignore[attr-defined]
+    cancelled = session.execute(statement).rowcount == 1  # type: ignore[attr-defined]
+    if cancelled:
+        _announce_finished(session, [job_id])
+    return cancelled
 
 
 def rescue_expired_jobs(session: Session, *, now: datetime | None = None) -> tuple[int, int]:
     """Running jobs whose lease expired (their worker died or stalled): queued again while
     attempts remain, failed with the reason otherwise. Returns (requeued, failed)."""
-    now = now or utcnow()
+    now = _clock(session, now)
     expired = (Job.state == JobState.RUNNING.value) & (Job.lease_expires_at < now)
-    failed = session.execute(
+    failed_ids = session.scalars(
         update(Job)
         .where(expired, Job.attempts >= Job.max_attempts)
         .values(
@@ -284,8 +380,9 @@ def rescue_expired_jobs(session: Session, *, now: datetime | None = None) -> tup
             error="the worker running this job stopped responding (its lease expired) "
             "on its last allowed attempt",
         )
+        .returning(Job.id)
         .execution_options(synchronize_session=False)
-    ).rowcount  # type: ignore[attr-defined]
+    ).all()
     requeued = session.execute(
         update(Job)
         .where(expired, Job.attempts < Job.max_attempts)
@@ -297,6 +394,7 @@ def rescue_expired_jobs(session: Session, *, now: datetime | None = None) -> tup
         )
         .execution_options(synchronize_session=False)
     ).rowcount  # type: ignore[attr-defined]
-    if requeued and session.get_bind().dialect.name == "postgresql":
-        session.execute(text("SELECT pg_notify(:channel, '')"), {"channel": NOTIFY_CHANNEL})
-    return int(requeued), int(failed)
+    if requeued:
+        _announce_runnable(session, None)
+    _announce_finished(session, failed_ids)
+    return int(requeued), len(failed_ids)

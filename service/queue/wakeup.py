@@ -1,14 +1,24 @@
-"""How an idle worker learns that a job was enqueued: PostgreSQL LISTEN, or polling."""
+"""How an idle worker learns that a job was enqueued, and how a result request learns that its
+job finished: PostgreSQL LISTEN, in-process signals, or polling."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
+import threading
+import uuid
 from typing import Any, Protocol
 
 from sqlalchemy import make_url
 
-from service.queue.jobs import NOTIFY_CHANNEL, local_enqueue_signal
+from service.queue.jobs import (
+    FINISHED_CHANNEL,
+    NOTIFY_CHANNEL,
+    local_enqueue_signal,
+    subscribe_local_finishes,
+    unsubscribe_local_finishes,
+)
 
 log = logging.getLogger(__name__)
 
@@ -40,8 +50,7 @@ class PostgresWakeup:
     """
 
     def __init__(self, database_url: str) -> None:
-        url = make_url(database_url).set(drivername="postgresql")
-        self._conninfo = url.render_as_string(hide_password=False)
+        self._conninfo = libpq_conninfo(database_url)
         self._connection: Any = None
 
     def _listen(self) -> Any:
@@ -74,3 +83,98 @@ def make_wakeup(database_url: str) -> Wakeup:
     if database_url.startswith("postgresql"):
         return PostgresWakeup(database_url)
     return PollingWakeup()
+
+
+def libpq_conninfo(database_url: str) -> str:
+    """The libpq URL psycopg connects with, from a SQLAlchemy URL."""
+    url = make_url(database_url).set(drivername="postgresql")
+    return url.render_as_string(hide_password=False)
+
+
+class FinishedJobs:
+    """Wakes `?wait=` result requests when their job finishes.
+
+    On PostgreSQL one thread per API process LISTENs on the finished-jobs channel (the NOTIFY is
+    sent in the finishing transaction) and wakes the requests waiting for that job. On SQLite it
+    hears of jobs finished by workers in this process; workers in other processes cannot tell
+    it, so requests poll as well (`listening` says whether notifications can be relied on).
+    """
+
+    RECONNECT_SECONDS = 1.0
+
+    def __init__(self, database_url: str) -> None:
+        self._postgres = database_url.startswith("postgresql")
+        self._conninfo = libpq_conninfo(database_url) if self._postgres else ""
+        self._waiters: dict[str, set[tuple[asyncio.AbstractEventLoop, asyncio.Event]]] = {}
+        self._lock = threading.Lock()
+        self._closing = threading.Event()
+        self._connected = threading.Event()
+        self._thread: threading.Thread | None = None
+        if not self._postgres:
+            subscribe_local_finishes(self._wake)
+
+    @property
+    def listening(self) -> bool:
+        """True when every finish will be heard (PostgreSQL, listener connected)."""
+        return self._connected.is_set()
+
+    def start(self) -> None:
+        """Start listening (PostgreSQL; nothing to start on SQLite)."""
+        if self._postgres and self._thread is None:
+            self._thread = threading.Thread(
+                target=self._listen, name="roadlink-finished-jobs", daemon=True
+            )
+            self._thread.start()
+
+    def close(self) -> None:
+        """Stop listening and forget every waiter."""
+        self._closing.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+            self._thread = None
+        if not self._postgres:
+            unsubscribe_local_finishes(self._wake)
+
+    def watch(self, job_id: uuid.UUID) -> asyncio.Event:
+        """An event set when the job finishes; register before reading the job's state, so that
+        a finish between the read and the wait is not missed. Give it back with `unwatch`."""
+        event = asyncio.Event()
+        with self._lock:
+            self._waiters.setdefault(str(job_id), set()).add((asyncio.get_running_loop(), event))
+        return event
+
+    def unwatch(self, job_id: uuid.UUID, event: asyncio.Event) -> None:
+        """Stop waking `event` for this job."""
+        key = str(job_id)
+        with self._lock:
+            waiters = self._waiters.get(key, set())
+            waiters = {w for w in waiters if w[1] is not event}
+            if waiters:
+                self._waiters[key] = waiters
+            else:
+                self._waiters.pop(key, None)
+
+    def _wake(self, job_ids: list[str]) -> None:
+        with self._lock:
+            woken = [w for job_id in job_ids for w in self._waiters.get(job_id, ())]
+        for loop, event in woken:
+            with contextlib.suppress(RuntimeError):  # that request's loop has closed
+                loop.call_soon_threadsafe(event.set)
+
+    def _listen(self) -> None:
+        import psycopg  # only needed on PostgreSQL
+
+        while not self._closing.is_set():
+            try:
+                with psycopg.connect(self._conninfo, autocommit=True) as connection:
+                    connection.execute(f"LISTEN {FINISHED_CHANNEL}")
+                    self._connected.set()
+                    while not self._closing.is_set():
+                        # The timeout only bounds how long close() waits for this thread.
+                        for notify in connection.notifies(timeout=0.5):
+                            self._wake([notify.payload])
+            except Exception as exc:  # the database may be restarting: requests poll meanwhile
+                self._connected.clear()
+                log.warning("LISTEN for finished jobs failed (%s); retrying", exc)
+                self._closing.wait(self.RECONNECT_SECONDS)
+        self._connected.clear()

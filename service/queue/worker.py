@@ -1,7 +1,8 @@
 """The worker loop: claim a job, run the association core on its detections, store the result.
 
 Each worker is its own process (so numpy and scikit-learn never stall the API) running one job
-at a time; a heartbeat thread renews the job's lease and reports progress meanwhile.
+at a time in a child process of its own (so a job past its time limit can be killed without
+losing the worker); a heartbeat thread renews the job's lease and reports progress meanwhile.
 """
 
 from __future__ import annotations
@@ -12,15 +13,20 @@ import signal
 import socket
 import threading
 import time
-import traceback
 import uuid
 
 from sqlalchemy import Engine
 
-from service.association import DetectionError, associate
-from service.association.associators import AssociationError
 from service.db.engine import make_engine, make_session_factory, transaction
 from service.db.repository import load_detections
+from service.queue.associator_process import (
+    AssociatorProcess,
+    Died,
+    Failed,
+    Stopped,
+    Succeeded,
+    TimedOut,
+)
 from service.queue.jobs import (
     ClaimedJob,
     claim_next_job,
@@ -37,11 +43,6 @@ from service.settings import Settings
 log = logging.getLogger(__name__)
 
 
-class JobInterrupted(Exception):
-    """Raised inside the associator's progress callback to stop a job that is no longer ours
-    (cancelled, or its lease was lost) or that must be handed back (the worker is stopping)."""
-
-
 class Worker:
     """Drains the queue, one job at a time."""
 
@@ -51,11 +52,13 @@ class Worker:
         self.sessions = make_session_factory(self.engine)
         self.id = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
         self.stopping = threading.Event()
+        self.associator_process = AssociatorProcess()
         self._last_rescue = 0.0
 
     def run(self, wakeup: Wakeup | None = None) -> None:
         """Work until `stopping` is set."""
         wakeup = wakeup or make_wakeup(self.settings.database_url)
+        self.associator_process.start()  # so that the first job does not wait for it
         log.info("worker %s started", self.id)
         try:
             while not self.stopping.is_set():
@@ -64,6 +67,10 @@ class Worker:
         finally:
             wakeup.close()
             log.info("worker %s stopped", self.id)
+
+    def close(self) -> None:
+        """Stop the associator process (the engine, when given by the caller, is theirs)."""
+        self.associator_process.close()
 
     def run_once(self) -> bool:
         """Rescue expired leases when due, then claim and run one job; False if none was queued."""
@@ -94,14 +101,13 @@ class Worker:
     def run_job(self, job: ClaimedJob) -> None:
         """Run a claimed job to its end: succeeded, failed, queued again, or given up."""
         started = time.monotonic()
+        limit = self.settings.job_timeout_seconds
         progress = [0.0]
         lost = threading.Event()  # cancelled, or rescued by another worker
         done = threading.Event()
 
-        def report(share: float) -> None:
-            progress[0] = min(max(float(share), 0.0), 1.0)
-            if lost.is_set() or self.stopping.is_set():
-                raise JobInterrupted
+        def record_progress(share: float) -> None:
+            progress[0] = share
 
         heartbeat = threading.Thread(
             target=self._heartbeat, args=(job, progress, lost, done), daemon=True
@@ -112,32 +118,51 @@ class Worker:
                 detections = load_detections(
                     session, deployment_id=job.deployment_id, selection=job.selection
                 )
-            result = associate(detections, job.associator, job.params, progress=report)
-        except JobInterrupted:
-            self._interrupted(job, lost)
-            return
-        except (AssociationError, DetectionError) as exc:
-            # The input or parameters are wrong: running again would fail the same way.
-            self._failed(job, str(exc), retry=False)
-            return
-        except Exception as exc:
-            log.exception("job %s crashed", job.id)
-            self._failed(
-                job, f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=5)}", retry=True
+            outcome = self.associator_process.run(
+                detections,
+                job.associator,
+                job.params,
+                deadline=started + limit,
+                should_stop=lambda: lost.is_set() or self.stopping.is_set(),
+                on_progress=record_progress,
             )
+        except Exception as exc:  # loading the detections failed (the database went away)
+            log.exception("job %s could not be run", job.id)
+            self._failed(job, f"{type(exc).__name__}: {exc}", retry=True)
             return
         finally:
             done.set()
             heartbeat.join()
-        if lost.is_set():
+        if lost.is_set() or isinstance(outcome, Stopped):
             self._interrupted(job, lost)
-            return
+        elif isinstance(outcome, TimedOut):
+            self._failed(
+                job,
+                f"the job exceeded the time limit of {limit:g} s "
+                "(ROADLINK_JOB_TIMEOUT_SECONDS) and was stopped",
+                retry=False,
+            )
+        elif isinstance(outcome, Died):
+            self._failed(
+                job,
+                f"the associator process died (exit code {outcome.exitcode}), "
+                "e.g. killed for using too much memory",
+                retry=True,
+            )
+        elif isinstance(outcome, Failed):
+            if outcome.retry:
+                log.error("job %s crashed: %s", job.id, outcome.error)
+            self._failed(job, outcome.error, retry=outcome.retry)
+        else:
+            self._succeeded(job, outcome, started)
+
+    def _succeeded(self, job: ClaimedJob, outcome: Succeeded, started: float) -> None:
         with transaction(self.sessions) as session:
             stored = complete_job(
                 session,
                 job_id=job.id,
                 worker_id=self.id,
-                result=result,
+                result=outcome.result,
                 duration_seconds=time.monotonic() - started,
             )
         if stored:
@@ -205,4 +230,5 @@ def run_worker_process(settings: Settings) -> None:
     try:
         worker.run()
     finally:
+        worker.close()
         worker.engine.dispose()

@@ -1,25 +1,27 @@
 """The worker: runs the core on a claimed job and stores exactly what the core returns; retries
-crashes, not user errors; stops when its job is cancelled; hands its job back when stopping."""
+crashes, not user errors; stops when its job is cancelled; hands its job back when stopping;
+kills a job past its time limit and goes on to the next."""
 
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 import uuid
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.association import associate
 from service.association.detections import Detections
 from service.db import repository
 from service.db.models import Job
-from service.queue import worker as worker_module
 from service.queue.worker import Worker
 from service.settings import Settings
+from tests.queue import associators_for_tests
 from tests.queue.conftest import EnqueueJob
 
 
@@ -37,21 +39,22 @@ def _wait_for(condition: Any, timeout: float = 10.0) -> None:
         time.sleep(0.01)
 
 
-@pytest.fixture
-def slow_associate(monkeypatch: pytest.MonkeyPatch) -> Iterator[threading.Event]:
-    """Replace the core with one that reports progress every 10 ms for up to 10 s, so tests can
-    act on a job while it runs; the event is set once it started."""
-    started = threading.Event()
+@pytest.fixture(autouse=True)
+def test_associators(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The test-only associators, known to the worker's associator process (forked later)."""
+    from service.association.associators import ASSOCIATORS
 
-    def run(detections: Detections, associator: str, params: Any, progress: Any) -> Any:
-        started.set()
-        for step in range(1000):
-            progress(step / 1000)
-            time.sleep(0.01)
-        raise AssertionError("the job was not interrupted")
+    for cls in (associators_for_tests.SleepingAssociator, associators_for_tests.CrashingAssociator):
+        monkeypatch.setitem(ASSOCIATORS, cls.name, cls)
 
-    monkeypatch.setattr(worker_module, "associate", run)
-    yield started
+
+# Reports progress every 10 ms for 10 s, so that tests can act on the job while it runs.
+SLOW = {"seconds": 10.0}
+
+
+def _wait_until_running(sessions: sessionmaker[Session], job_id: uuid.UUID) -> None:
+    """Until the job runs and its progress reached the database (through the heartbeat)."""
+    _wait_for(lambda: _job(sessions, job_id).progress > 0)
 
 
 def test_a_job_stores_exactly_what_the_core_computes(
@@ -71,16 +74,9 @@ def test_a_job_stores_exactly_what_the_core_computes(
 
 
 def test_a_crash_is_retried_until_attempts_run_out(
-    worker: Worker,
-    sessions: sessionmaker[Session],
-    enqueue: EnqueueJob,
-    monkeypatch: pytest.MonkeyPatch,
+    worker: Worker, sessions: sessionmaker[Session], enqueue: EnqueueJob
 ) -> None:
-    def crash(*_args: Any, **_kwargs: Any) -> Any:
-        raise RuntimeError("out of memory")
-
-    monkeypatch.setattr(worker_module, "associate", crash)
-    job_id = enqueue(max_attempts=2)
+    job_id = enqueue("test-crashing", max_attempts=2)
     assert worker.run_once()
     assert _job(sessions, job_id).state == "queued"
     assert worker.run_once()
@@ -104,16 +100,14 @@ def test_progress_is_reported_and_a_cancelled_job_stops(
     worker: Worker,
     sessions: sessionmaker[Session],
     enqueue: EnqueueJob,
-    slow_associate: threading.Event,
 ) -> None:
     from service.db.engine import transaction
     from service.queue import cancel_job
 
-    job_id = enqueue()
+    job_id = enqueue("test-sleeping", SLOW)
     runner = threading.Thread(target=worker.run_once)
     runner.start()
-    assert slow_associate.wait(10)
-    _wait_for(lambda: _job(sessions, job_id).progress > 0)  # written by the heartbeat
+    _wait_until_running(sessions, job_id)
     with transaction(sessions) as session:
         assert cancel_job(session, job_id=job_id)
     cancelled_at = time.monotonic()
@@ -121,21 +115,19 @@ def test_progress_is_reported_and_a_cancelled_job_stops(
     assert not runner.is_alive()
     # Noticed at the next heartbeat, then stopped at the next progress report.
     assert time.monotonic() - cancelled_at < settings.heartbeat_seconds + 1.0
+    assert worker.associator_process.pid is not None  # stopped politely, not killed
     assert _job(sessions, job_id).state == "cancelled"
     with sessions() as session:
         assert repository.get_job_result(session, job_id=job_id) is None
 
 
 def test_a_stopping_worker_hands_its_job_back(
-    worker: Worker,
-    sessions: sessionmaker[Session],
-    enqueue: EnqueueJob,
-    slow_associate: threading.Event,
+    worker: Worker, sessions: sessionmaker[Session], enqueue: EnqueueJob
 ) -> None:
-    job_id = enqueue()
+    job_id = enqueue("test-sleeping", SLOW)
     runner = threading.Thread(target=worker.run_once)
     runner.start()
-    assert slow_associate.wait(10)
+    _wait_until_running(sessions, job_id)
     worker.stopping.set()
     runner.join(10)
     job = _job(sessions, job_id)
@@ -156,3 +148,52 @@ def test_an_idle_worker_wakes_for_a_new_job(
         worker.stopping.set()
         runner.join(10)
     assert not runner.is_alive()
+
+
+@pytest.mark.parametrize("report_progress", [True, False], ids=["reporting", "stuck"])
+def test_a_job_past_its_time_limit_fails_and_the_worker_takes_the_next(
+    settings: Settings,
+    engine: Engine,
+    sessions: sessionmaker[Session],
+    enqueue: EnqueueJob,
+    paper_batch: Detections,
+    report_progress: bool,
+) -> None:
+    """Whether or not the associator still reports progress, its process is killed at the
+    limit; the worker survives it and runs the next job in a new associator process."""
+    worker = Worker(settings.model_copy(update={"job_timeout_seconds": 0.5}), engine=engine)
+    try:
+        slow = enqueue("test-sleeping", {"seconds": 30.0, "report_progress": report_progress})
+        following = enqueue("kmeans++")
+        began = time.monotonic()
+        assert worker.run_once()
+        took = time.monotonic() - began
+        first_child = worker.associator_process.pid
+        assert first_child is None  # killed with its job
+        job = _job(sessions, slow)
+        assert (job.state, job.attempts) == ("failed", 1)  # not retried: it would overrun again
+        assert job.error is not None and "exceeded the time limit of 0.5 s" in job.error
+        assert took < 5.0  # stopped at the limit, not after the job's 30 s
+        assert worker.run_once()
+        assert _job(sessions, following).state == "succeeded"
+        assert worker.associator_process.pid not in (None, os.getpid())
+    finally:
+        worker.close()
+
+
+def test_a_job_whose_associator_process_dies_is_retried(
+    worker: Worker, sessions: sessionmaker[Session], enqueue: EnqueueJob
+) -> None:
+    """A child killed from outside (e.g. by the kernel for its memory) costs an attempt."""
+    job_id = enqueue("test-sleeping", SLOW, max_attempts=2)
+    runner = threading.Thread(target=worker.run_once)
+    runner.start()
+    _wait_until_running(sessions, job_id)
+    child = worker.associator_process.pid
+    assert child is not None
+    os.kill(child, 9)
+    runner.join(10)
+    assert not runner.is_alive()
+    job = _job(sessions, job_id)
+    assert (job.state, job.attempts) == ("queued", 1)
+    assert job.error is not None and "associator process died (exit code -9)" in job.error

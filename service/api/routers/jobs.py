@@ -5,9 +5,11 @@ from __future__ import annotations
 import asyncio
 import time
 import uuid
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager, suppress
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Query, Request, Response
+from fastapi import APIRouter, FastAPI, Query, Request, Response
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.concurrency import run_in_threadpool
 
@@ -20,12 +22,29 @@ from service.api.schemas import AssociateRequest, AssociationResultRead, JobCrea
 from service.db import repository
 from service.db.models import Job, JobState
 from service.queue.jobs import cancel_job, enqueue_job
+from service.queue.wakeup import FinishedJobs
 
-router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
-# A waiting result request re-reads the job this often at first, backing off to the maximum.
+@asynccontextmanager
+async def _listen_for_finished_jobs(app: FastAPI) -> AsyncIterator[None]:
+    finished = FinishedJobs(app.state.settings.database_url)
+    finished.start()
+    app.state.finished_jobs = finished
+    try:
+        yield
+    finally:
+        finished.close()
+
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"], lifespan=_listen_for_finished_jobs)
+
+# A waiting result request is woken by the job's finish notification (PostgreSQL, or a worker in
+# this process); it also re-reads the job, often at first and backing off to the maximum, which
+# is all it has when no notification can reach it (SQLite workers in other processes).
 WAIT_FIRST_POLL_SECONDS = 0.02
 WAIT_MAX_POLL_SECONDS = 0.25
+# While notifications are heard, re-reading only covers one lost in a reconnection.
+WAIT_LISTENING_POLL_SECONDS = 2.0
 
 MATRIX_CSV_EXAMPLE = (
     "target,S1_detection_id,S1_velocity,S1_timestamp,S2_detection_id,S2_velocity,S2_timestamp\n"
@@ -192,17 +211,33 @@ async def get_result(
     the same detections and parameters. 409 while the job is unfinished (or if it failed or was
     cancelled)."""
     deadline = time.monotonic() + min(wait, settings.max_wait_seconds)
-    pause = WAIT_FIRST_POLL_SECONDS
-    while True:
-        job = await run_in_threadpool(_read_job, sessions, job_id)
-        if job is None:
-            raise ApiProblem(404, f"there is no job {job_id}")
-        if JobState(job.state).finished or time.monotonic() >= deadline:
-            break
-        if await request.is_disconnected():
-            raise ApiProblem(408, "the client went away while waiting")
-        await asyncio.sleep(min(pause, max(deadline - time.monotonic(), 0.0)))
-        pause = min(pause * 2, WAIT_MAX_POLL_SECONDS)
+    finished_jobs: FinishedJobs | None = getattr(request.app.state, "finished_jobs", None)
+    # Watched before the first read, so that a finish between the read and the wait is heard.
+    finished = None if finished_jobs is None or wait <= 0 else finished_jobs.watch(job_id)
+    try:
+        pause = WAIT_FIRST_POLL_SECONDS
+        while True:
+            job = await run_in_threadpool(_read_job, sessions, job_id)
+            if job is None:
+                raise ApiProblem(404, f"there is no job {job_id}")
+            if JobState(job.state).finished or time.monotonic() >= deadline:
+                break
+            if await request.is_disconnected():
+                raise ApiProblem(408, "the client went away while waiting")
+            timeout = min(pause, max(deadline - time.monotonic(), 0.0))
+            if finished is None:
+                await asyncio.sleep(timeout)
+            else:
+                with suppress(TimeoutError):
+                    await asyncio.wait_for(finished.wait(), timeout)
+                finished.clear()
+            listening = finished_jobs is not None and finished_jobs.listening
+            pause = min(
+                pause * 2, WAIT_LISTENING_POLL_SECONDS if listening else WAIT_MAX_POLL_SECONDS
+            )
+    finally:
+        if finished is not None and finished_jobs is not None:
+            finished_jobs.unwatch(job_id, finished)
     if job.state != JobState.SUCCEEDED.value:
         raise ApiProblem(409, _unfinished_detail(job))
     stored = await run_in_threadpool(_read_result, sessions, job_id)

@@ -1,0 +1,78 @@
+"""`GET /v1/jobs/{id}/result?wait=` is woken by the job's finish: on PostgreSQL by the NOTIFY
+of the finishing transaction, on SQLite by the worker in this process; polling is the fallback."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from service.api.routers import jobs as jobs_router
+from service.association.associators import ASSOCIATORS
+from service.queue.worker import Worker
+from tests.queue.associators_for_tests import SleepingAssociator
+
+# With polling this slow, only a notification can end the wait before the job's 60 s timeout.
+NO_POLLING_SECONDS = 60.0
+
+
+@pytest.fixture
+def notifications_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    for name in ("WAIT_FIRST_POLL_SECONDS", "WAIT_MAX_POLL_SECONDS", "WAIT_LISTENING_POLL_SECONDS"):
+        monkeypatch.setattr(jobs_router, name, NO_POLLING_SECONDS)
+    monkeypatch.setitem(ASSOCIATORS, SleepingAssociator.name, SleepingAssociator)
+
+
+@pytest.fixture
+def running_worker(worker: Worker) -> Iterator[Worker]:
+    thread = threading.Thread(target=worker.run)
+    thread.start()
+    yield worker
+    worker.stopping.set()
+    thread.join(10)
+
+
+def _post(client: TestClient, deployment: dict[str, Any], paper_csv: str, **params: str) -> Any:
+    response = client.post(
+        f"/v1/deployments/{deployment['id']}/batches",
+        content=paper_csv,
+        headers={"content-type": "text/csv"},
+        params=params,
+    )
+    assert response.status_code == 201, response.text
+    return response.json()["job"]["id"]
+
+
+def test_a_waiting_request_is_woken_when_its_job_succeeds(
+    notifications_only: None,
+    client: TestClient,
+    running_worker: Worker,
+    deployment: dict[str, Any],
+    paper_csv: str,
+) -> None:
+    job_id = _post(
+        client, deployment, paper_csv, associator="test-sleeping", params='{"seconds": 0.5}'
+    )
+    began = time.monotonic()
+    result = client.get(f"/v1/jobs/{job_id}/result", params={"wait": 10})
+    assert result.status_code == 200, result.text
+    assert result.json()["n_detections"] == 100
+    # Started before the job finished (it takes 0.5 s) and ended long before the next poll.
+    assert time.monotonic() - began < NO_POLLING_SECONDS / 4
+
+
+def test_a_waiting_request_is_woken_when_its_job_is_cancelled(
+    notifications_only: None, client: TestClient, deployment: dict[str, Any], paper_csv: str
+) -> None:
+    job_id = _post(client, deployment, paper_csv, associator="kmeans++")  # no worker: queued
+    cancel = threading.Timer(0.3, lambda: client.post(f"/v1/jobs/{job_id}/cancel"))
+    cancel.start()
+    began = time.monotonic()
+    result = client.get(f"/v1/jobs/{job_id}/result", params={"wait": 10})
+    cancel.join()
+    assert result.status_code == 409 and "cancelled" in result.json()["detail"]
+    assert time.monotonic() - began < NO_POLLING_SECONDS / 4
