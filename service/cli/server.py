@@ -134,10 +134,19 @@ def serve_command(
 
 @app.command("worker")
 def worker_command(
-    workers: Annotated[int, typer.Option(min=1, help="Worker processes to run.")] = 1,
+    workers: Annotated[
+        int | None,
+        typer.Option(min=1, help="Worker processes to run [ROADLINK_WORKERS; default: cores]."),
+    ] = None,
 ) -> None:
     """Run workers only, against ROADLINK_DATABASE_URL (to scale out beside `serve`)."""
-    settings = _settings()
+    settings = _settings(workers=workers)
+    workers = settings.workers
+    if workers < 1:
+        typer.echo(
+            "error: `roadlink worker` needs at least one worker (ROADLINK_WORKERS)", err=True
+        )
+        raise typer.Exit(code=2)
     if workers == 1:
         from service.queue.worker import run_worker_process
 

@@ -1,0 +1,19 @@
+"""The server-side commands read their settings from ROADLINK_* as documented."""
+
+from typer.testing import CliRunner
+
+from service.cli import app
+
+runner = CliRunner()
+
+
+def test_worker_takes_its_process_count_from_roadlink_workers(tmp_path):
+    env = {"ROADLINK_DATABASE_URL": f"sqlite:///{tmp_path / 'w.db'}", "ROADLINK_WORKERS": "0"}
+    result = runner.invoke(app, ["worker"], env=env)
+    assert result.exit_code == 2
+    assert "ROADLINK_WORKERS" in result.stderr
+
+
+def test_worker_option_is_checked():
+    result = runner.invoke(app, ["worker", "--workers", "0"])
+    assert result.exit_code == 2
