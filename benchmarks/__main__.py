@@ -35,6 +35,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--json", type=Path, default=DEFAULT_JSON, help=f"where to write results ({DEFAULT_JSON})"
     )
+    parser.add_argument(
+        "--render",
+        type=Path,
+        metavar="JSON",
+        help="print the tables of a saved results file instead of running anything",
+    )
     return parser.parse_args(argv)
 
 
@@ -63,15 +69,27 @@ def results_document(
     }
 
 
+def render(document: dict[str, Any]) -> str:
+    """A results document as Markdown: date, mode, machine, then every section's tables."""
+    parts = [
+        f"# roadlink benchmarks ({document['mode']}), {document['date']}",
+        "",
+        machine_line(document["machine"]),
+        "",
+    ]
+    parts += [Section.from_dict(s).to_markdown() for s in document["sections"]]
+    return "\n".join(parts)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
+    if args.render:
+        print(render(json.loads(args.render.read_text())))
+        return
     started = datetime.datetime.now(datetime.UTC)
     sections = run_sections(args.only or list(SECTIONS), args.quick)
     document = results_document(sections, args.quick, started)
-    print(f"# roadlink benchmarks ({document['mode']}), {document['date']}\n")
-    print(machine_line(document["machine"]) + "\n")
-    for section in sections:
-        print(section.to_markdown())
+    print(render(document))
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(document, indent=2) + "\n")
     print(f"results written to {args.json}", file=sys.stderr)

@@ -95,10 +95,21 @@ class Table:
             text += ["", *self.notes]
         return "\n".join(text)
 
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Table:
+        """The table `to_dict` wrote (samples come back from their runs)."""
+        columns = [
+            Column(c["name"], c["unit"], c.get("statistic", "median")) for c in data["columns"]
+        ]
+        rows = [[cell_from_json(row[c.name]) for c in columns] for row in data["rows"]]
+        return cls(data["title"], columns, rows, list(data["notes"]))
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "title": self.title,
-            "columns": [{"name": c.name, "unit": c.unit} for c in self.columns],
+            "columns": [
+                {"name": c.name, "unit": c.unit, "statistic": c.statistic} for c in self.columns
+            ],
             "rows": [
                 {col.name: cell_json(cell) for col, cell in zip(self.columns, row, strict=True)}
                 for row in self.rows
@@ -122,6 +133,12 @@ class Section:
         parts += ["", *(t.to_markdown() + "\n" for t in self.tables)]
         return "\n".join(parts).rstrip() + "\n"
 
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Section:
+        """The section `to_dict` wrote, e.g. to print a saved run again."""
+        tables = [Table.from_dict(t) for t in data["tables"]]
+        return cls(data["name"], data["description"], tables, data["settings"], data["seconds"])
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
@@ -135,6 +152,15 @@ class Section:
 def cell_json(cell: Cell) -> Any:
     """A cell as JSON: a sample becomes {median, min, max, mean, n, runs}."""
     return cell.to_dict() if isinstance(cell, Sample) else cell
+
+
+def cell_from_json(value: Any) -> Cell:
+    """A cell as `cell_json` wrote it."""
+    if isinstance(value, dict):
+        return Sample.of(value["runs"])
+    if value is None or isinstance(value, int | float | str):
+        return value
+    raise ValueError(f"not a table cell: {value!r}")
 
 
 def format_cell(cell: Cell, column: Column) -> str:

@@ -138,6 +138,9 @@ def test_the_runner_prints_markdown_and_writes_the_json_document(tmp_path, monke
         "runs": [0.3, 0.1, 0.2],
     }
 
+    runner.main(["--render", str(out)])
+    assert capsys.readouterr().out.strip() == printed.strip()
+
 
 def test_every_section_is_registered_under_its_name():
     assert list(SECTIONS) == ["associators", "peer"]
