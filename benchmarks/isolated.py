@@ -1,14 +1,16 @@
 """Run one method on one cached data set in a child process, under a time limit.
 
-A child of its own per (method, size) makes peak memory honest: the parent reads the child's
-peak resident set size from `os.wait4`, untouched by what the parent or earlier runs allocated.
-The child reports each step as a JSON line on stdout, so the parent can stop a run that exceeds
-its time limit as soon as it does, and keep the repeats finished before it.
+A child of its own per (method, size) makes peak memory honest: it is the high-water mark of
+the child's resident set (VmHWM in /proc/PID/status), untouched by what the parent or earlier
+runs allocated. Not `getrusage` of the child: on Linux its ru_maxrss also counts the parent's
+resident set at the fork that preceded the exec, so every child would seem as large as the
+parent. The child reports each step as a JSON line on stdout, so the parent can stop a run that
+exceeds its time limit as soon as it does, and keep the repeats finished before it.
 
 Child protocol (`python -m benchmarks.isolated SPEC_JSON`), one JSON object per line:
-  {"event": "loaded", "rss_kib": ..., "n": ...}    data loaded, imports done
-  {"event": "grouped", "seconds": ...}             one timed repeat of the grouping
-  {"event": "scored", "accuracy": ...}             the first repeat's accuracy
+  {"event": "loaded", "peak_rss_kib": ..., "n": ...}   data loaded, imports done
+  {"event": "grouped", "seconds": ..., "peak_rss_kib": ...}   one timed repeat
+  {"event": "scored", "accuracy": ...}                  the first repeat's accuracy
 """
 
 from __future__ import annotations
@@ -82,7 +84,10 @@ def run_isolated(spec: RunSpec, time_limit: float) -> IsolatedRun:
             try:
                 line = lines.get(timeout=max(0.0, deadline - time.monotonic()))
             except queue.Empty:
-                # Only the child we started, by its pid.
+                # Its peak so far is still readable; then stop it (only the child we started).
+                peak = peak_rss_kib(child.pid)
+                if peak is not None:
+                    result.peak_rss_mib = peak / 1024
                 os.kill(child.pid, signal.SIGKILL)
                 result.outcome = "timeout"
                 break
@@ -91,20 +96,18 @@ def run_isolated(spec: RunSpec, time_limit: float) -> IsolatedRun:
             event = json.loads(line)
             if event["event"] == "loaded":
                 result.n_detections = event["n"]
-                result.baseline_rss_mib = event["rss_kib"] / 1024
+                result.baseline_rss_mib = result.peak_rss_mib = event["peak_rss_kib"] / 1024
                 deadline = time.monotonic() + time_limit
             elif event["event"] == "grouped":
                 result.seconds.append(event["seconds"])
+                result.peak_rss_mib = event["peak_rss_kib"] / 1024
                 allowance = SCORE_ALLOWANCE_SECONDS if result.accuracy is None else 0.0
                 deadline = time.monotonic() + allowance + time_limit
             elif event["event"] == "scored":
                 result.accuracy = event["accuracy"]
                 deadline = time.monotonic() + time_limit
-        _, status, usage = os.wait4(child.pid, 0)
-        child.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
+        child.wait()
         reader.join()
-        # ru_maxrss is in KiB on Linux.
-        result.peak_rss_mib = usage.ru_maxrss / 1024
         if result.outcome == "ok" and child.returncode != 0:
             stderr.seek(0)
             last_lines = stderr.read().strip().splitlines()
@@ -126,13 +129,13 @@ def _child(spec: RunSpec) -> None:
 
     detections = load_detections(Path(spec.dataset))
     group = grouping_method(spec.method)
-    _emit(event="loaded", n=len(detections), rss_kib=_rss_kib())
+    _emit(event="loaded", n=len(detections), peak_rss_kib=peak_rss_kib())
     spent = 0.0
     for repeat in range(spec.repeats):
         start = time.perf_counter()
         groups = group(detections)
         seconds = time.perf_counter() - start
-        _emit(event="grouped", seconds=seconds)
+        _emit(event="grouped", seconds=seconds, peak_rss_kib=peak_rss_kib())
         if repeat == 0:
             # The methods are deterministic (seeded), so one score stands for every repeat.
             metrics = score_grouping(groups, detections.target)
@@ -143,8 +146,22 @@ def _child(spec: RunSpec) -> None:
             break
 
 
-def _rss_kib() -> int:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+def peak_rss_kib(pid: int | None = None) -> int | None:
+    """Peak resident set (KiB) of a process since its exec; None if it has already exited.
+
+    Read from /proc (Linux). Elsewhere, for this process only, `getrusage`'s ru_maxrss, which
+    may include the parent's resident set at fork.
+    """
+    status = Path(f"/proc/{pid or 'self'}/status")
+    try:
+        for line in status.read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    if pid is None:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return None
 
 
 def _emit(**event: Any) -> None:
