@@ -84,6 +84,8 @@ def render(document: dict[str, Any]) -> str:
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
     if args.render:
+        if not args.render.is_file():
+            sys.exit(f"no results file at {args.render}")
         print(render(json.loads(args.render.read_text())))
         return
     started = datetime.datetime.now(datetime.UTC)

@@ -49,7 +49,7 @@ def measure_scaling(methods: Sequence[str], plan: ScalingPlan, name: str = NAME)
         description=(
             f"Seconds to group, peak memory (RSS of a child process running one method on one "
             f"size) and accuracy, on the paper's 'large' preset stretched to {SENSORS} sensors "
-            f"at the same traffic density. Seconds are the median ([min, max]) of "
+            f"at the same traffic density. Seconds are the median [min, max] of "
             f"{_repeats(plan)}; a repeat over {plan.time_limit:g} s stops the method. Memory above "
             "baseline is the peak minus the RSS after imports and loading the data."
         ),

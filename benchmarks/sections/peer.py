@@ -50,8 +50,8 @@ def run(quick: bool) -> Section:
         f"Stone Soup {stonesoup_version} GNN tracker (`GNNWith2DAssignment`, constant-velocity "
         f"model in (passing time, pace) with road position as its clock) beside "
         f"{_compared_registry(methods)}. Accuracy is the "
-        f"paper's, over {seeds} seeds per preset (mean, and [min, max]); seconds per data set are "
-        "the median ([min, max]) over the seeds, in one process, including building Stone Soup's "
+        f"paper's, over {seeds} seeds per preset (mean [min, max]); seconds per data set are "
+        "the median [min, max] over the seeds, in one process, including building Stone Soup's "
         "detection objects.",
         settings={
             "stonesoup": stonesoup_version,
