@@ -1,0 +1,15 @@
+"""The benchmark sections, in the order they run. See benchmarks/README.md to add one."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from benchmarks.report import Section
+from benchmarks.sections import associators, peer
+
+SectionRunner = Callable[[bool], Section]
+
+SECTIONS: dict[str, SectionRunner] = {
+    associators.NAME: associators.run,
+    peer.NAME: peer.run,
+}
