@@ -236,7 +236,7 @@ def target_tracks(result: AssociationResult) -> list[Track]:
 
 def target_track(result: AssociationResult, target: str) -> Track:
     """The track of one target, named as in the result JSON ("T3"); KeyError when unknown."""
-    index = _target_index(target, result.n_targets)
+    index = target_index(target, result.n_targets)
     members = result.target_members()[index]
     return build_track(f"T{index + 1}", result.detections.take(members))
 
@@ -322,7 +322,11 @@ def _merge_by_sensor(d: Detections) -> list[SensorPass]:
     return passes
 
 
-def _target_index(target: str, n_targets: int) -> int:
+def target_index(target: str, n_targets: int) -> int:
+    """The 0-based index of a target named as in the result JSON ("T3"; also "t3" or "3").
+
+    KeyError naming the known targets when there is no such target.
+    """
     name = target.strip()
     number = name[1:] if name[:1] in ("T", "t") else name
     if number.isdigit() and 1 <= int(number) <= n_targets:
