@@ -103,8 +103,8 @@ def _draw_time_space(ax: Axes, result: AssociationResult) -> None:
     for sensor in d.sensor_positions:
         ax.axhline(sensor, color="0.85", linewidth=0.6, zorder=0)
     for track, colour in zip(tracks, colours, strict=True):
-        segments = max(len(track.passes) - 1, 1)
-        times = np.linspace(track.start, track.end, 16 * segments + 1)
+        # 16 samples per segment draw the cubic smoothly; a single pass is a single point.
+        times = np.linspace(track.start, track.end, 16 * (len(track.passes) - 1) + 1)
         ax.plot(
             times,
             track.positions(times),
