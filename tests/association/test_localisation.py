@@ -56,7 +56,9 @@ def test_input_order_does_not_matter():
 
 def test_two_detections_at_one_sensor_are_merged_into_their_mean():
     d = detections(
-        [0.0, 4.0, 4.5, 8.0], [0.0, 100.0, 100.0, 200.0], [25.0, 24.0, 26.0, 25.0],
+        [0.0, 4.0, 4.5, 8.0],
+        [0.0, 100.0, 100.0, 200.0],
+        [25.0, 24.0, 26.0, 25.0],
         ids=["a", "b", "b2", "c"],
     )
     track = build_track("T1", d)
@@ -99,9 +101,7 @@ def test_a_single_detection_is_known_at_its_own_instant_only():
 
 
 def test_positions_at_lists_only_the_targets_on_the_road():
-    d = detections(
-        [0.0, 4.0, 10.0, 14.0], [0.0, 100.0, 0.0, 100.0], [25.0, 25.0, 25.0, 25.0]
-    )
+    d = detections([0.0, 4.0, 10.0, 14.0], [0.0, 100.0, 0.0, 100.0], [25.0, 25.0, 25.0, 25.0])
     result = build_result(d, np.array([0, 0, 1, 1]), "test", {})
     assert [p.target for p in positions_at(result, 2.0)] == ["T1"]
     assert [p.target for p in positions_at(result, 12.0)] == ["T2"]
@@ -130,7 +130,7 @@ def test_trajectory_sampling_and_its_errors():
         target_trajectory(result, "T1", step=0.0)
     with pytest.raises(ValueError, match="limit"):
         target_trajectory(result, "T1", step=9.0 / (MAX_SAMPLES + 1))
-    with pytest.raises(KeyError, match="T1..T1"):
+    with pytest.raises(KeyError, match=r"T1\.\.T1"):
         target_track(result, "T2")
 
 
