@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 from sklearn.metrics import adjusted_rand_score
@@ -80,16 +81,51 @@ def _pair_counts(pred: IntArray, truth: IntArray) -> tuple[IntArray, IntArray, I
     return pairs[:, 0], pairs[:, 1], counts
 
 
+def wrongly_grouped(groups: IntArray, labels: ObjectArray) -> npt.NDArray[np.bool_]:
+    """Mask of the detections the accuracy counts as wrong (False where unlabelled).
+
+    Groups are matched one-to-one to true targets as for accuracy; a labelled detection is wrong
+    when its group is not matched to its own target, when it is left unassigned although it
+    belongs to a target, or when it is clutter put in a group. So the number of wrong detections
+    is exactly (1 - accuracy) x the number of labelled ones.
+    """
+    groups = np.asarray(groups, dtype=np.int64)
+    labelled = np.array([t is not None for t in labels], dtype=bool)
+    wrong = np.zeros(groups.size, dtype=bool)
+    if not labelled.any():
+        return wrong
+    truth_text = labels[labelled].astype(str)
+    truth = np.where(truth_text == CLUTTER, -1, np.unique(truth_text, return_inverse=True)[1])
+    pred = groups[labelled]
+    right = (pred == -1) & (truth == -1)
+    both = (pred >= 0) & (truth >= 0)
+    if both.any():
+        matched_group, matched_target, _ = _best_matching(*_pair_counts(pred[both], truth[both]))
+        partner = np.full(int(pred.max()) + 1, -2, dtype=np.int64)
+        partner[matched_group] = matched_target
+        right[both] = partner[pred[both]] == truth[both]
+    wrong[np.flatnonzero(labelled)[~right]] = True
+    return wrong
+
+
 def _max_matching_weight(groups: IntArray, targets: IntArray, counts: IntArray) -> int:
-    """Weight of the best one-to-one matching of groups to targets (an assignment problem).
+    """Weight of the best one-to-one matching of groups to targets."""
+    return int(_best_matching(groups, targets, counts)[2].sum())
+
+
+def _best_matching(
+    groups: IntArray, targets: IntArray, counts: IntArray
+) -> tuple[IntArray, IntArray, IntArray]:
+    """The best one-to-one matching of groups to targets (an assignment problem), as matched
+    (group, target, count) triples, from the table's non-zero cells (group, target, count).
 
     The contingency table is sparse (a group mostly holds one target) and can be 20,000 x
     20,000, so it is solved as a sparse assignment (LAPJVsp). Every group also gets a private
     "no target" column so that a full matching of the groups always exists; costs are
     `top - count`, so minimising cost maximises the matched count.
     """
-    _, g = np.unique(groups, return_inverse=True)
-    _, t = np.unique(targets, return_inverse=True)
+    group_ids, g = np.unique(groups, return_inverse=True)
+    target_ids, t = np.unique(targets, return_inverse=True)
     n_g, n_t = int(g.max()) + 1, int(t.max()) + 1
     top = int(counts.max()) + 1
     rows = np.concatenate([g, np.arange(n_g)])
@@ -98,7 +134,13 @@ def _max_matching_weight(groups: IntArray, targets: IntArray, counts: IntArray) 
     graph = csr_matrix((cost, (rows, cols)), shape=(n_g, n_t + n_g))
     matched_rows, matched_cols = min_weight_full_bipartite_matching(graph)
     real = matched_cols < n_t
-    return int(np.sum(top - graph[matched_rows[real], matched_cols[real]]))
+    matched_rows, matched_cols = matched_rows[real], matched_cols[real]
+    matched_counts = top - np.asarray(graph[matched_rows, matched_cols]).ravel()
+    return (
+        group_ids[matched_rows],
+        target_ids[matched_cols],
+        matched_counts.astype(np.int64),
+    )
 
 
 def _pairs_within(ids: IntArray) -> int:

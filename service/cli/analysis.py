@@ -9,10 +9,11 @@ from typing import Annotated
 
 import typer
 
-from service.association import DetectionError, associate
+from service.association import AssociationResult, DetectionError, associate
 from service.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR, AssociationError
 from service.association.csvio import read_detections_csv, write_detections_csv
 from service.cli import app
+from service.plots import PLOT_FORMATS, PLOT_KINDS, render_plot
 from service.simulation import PRESETS, preset, simulate
 
 
@@ -20,6 +21,14 @@ def fail(message: str) -> typer.Exit:
     """Print an error a person can act on, and exit with status 2 (bad input)."""
     typer.echo(f"error: {message}", err=True)
     return typer.Exit(code=2)
+
+
+def plot_format_of(path: Path) -> str:
+    """The plot format named by a file's suffix (.png or .svg); exit 2 otherwise."""
+    fmt = path.suffix.lower().lstrip(".")
+    if fmt not in PLOT_FORMATS:
+        raise fail(f"--plot file must end in .png or .svg, got '{path.name}'")
+    return fmt
 
 
 def parse_param_options(values: list[str]) -> dict[str, str]:
@@ -31,6 +40,19 @@ def parse_param_options(values: list[str]) -> dict[str, str]:
             raise fail(f"--param takes key=value, got '{item}'")
         params[key.strip()] = value.strip()
     return params
+
+
+def associate_file(file: Path, associator: str, param: list[str]) -> AssociationResult:
+    """Read a detection CSV ('-' = stdin) and associate it; exit 2 with the reason on bad input."""
+    try:
+        text = sys.stdin.read() if str(file) == "-" else file.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise fail(f"cannot read {file}: {exc.strerror}") from None
+    try:
+        detections = read_detections_csv(text)
+        return associate(detections, associator, parse_param_options(param))
+    except (DetectionError, AssociationError) as exc:
+        raise fail(f"{file}: {exc}") from None
 
 
 @app.command("simulate")
@@ -94,19 +116,27 @@ def associate_command(
     as_csv: Annotated[
         bool, typer.Option("--csv", help="Print the target x sensor matrix (the paper's X'').")
     ] = False,
+    plot: Annotated[
+        Path | None,
+        typer.Option("--plot", help="Also draw the result to this .png or .svg file."),
+    ] = None,
+    plot_kind: Annotated[
+        str, typer.Option("--plot-kind", help=f"One of: {', '.join(PLOT_KINDS)}.")
+    ] = "time-space",
 ) -> None:
     """Group the detections of a CSV file into targets, and score them when labelled."""
     if as_json and as_csv:
         raise fail("choose one of --json and --csv")
-    try:
-        text = sys.stdin.read() if str(file) == "-" else file.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise fail(f"cannot read {file}: {exc.strerror}") from None
-    try:
-        detections = read_detections_csv(text)
-        result = associate(detections, associator, parse_param_options(param or []))
-    except (DetectionError, AssociationError) as exc:
-        raise fail(f"{file}: {exc}") from None
+    plot_format = None if plot is None else plot_format_of(plot)
+    if plot_kind not in PLOT_KINDS:
+        raise fail(f"unknown --plot-kind '{plot_kind}'; known: {', '.join(PLOT_KINDS)}")
+    result = associate_file(file, associator, param or [])
+    if plot is not None and plot_format is not None:
+        try:
+            plot.write_bytes(render_plot(result, plot_kind, plot_format))
+        except OSError as exc:
+            raise fail(f"cannot write {plot}: {exc.strerror}") from None
+        typer.echo(f"wrote {plot_kind} plot to {plot}", err=True)
     if as_json:
         sys.stdout.write(json.dumps(result.to_dict(), indent=2) + "\n")
     elif as_csv:

@@ -1,0 +1,123 @@
+"""`roadlink locate` and `roadlink associate --plot` as a user runs them."""
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from service.association import associate
+from service.association.associators import DEFAULT_ASSOCIATOR
+from service.association.csvio import read_detections_csv
+from service.association.localisation import positions_at, target_trajectory
+from service.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def large_csv(tmp_path_factory):
+    path = tmp_path_factory.mktemp("data") / "large.csv"
+    result = runner.invoke(app, ["simulate", "--preset", "large", "--seed", "1", "-o", str(path)])
+    assert result.exit_code == 0, result.output
+    return path
+
+
+@pytest.fixture(scope="module")
+def library_result(large_csv):
+    return associate(read_detections_csv(large_csv.read_text()), DEFAULT_ASSOCIATOR)
+
+
+def test_positions_at_a_time_as_json_are_the_library_answer(large_csv, library_result):
+    result = runner.invoke(app, ["locate", str(large_csv), "--at", "20", "--json"])
+    assert result.exit_code == 0, result.output
+    printed = json.loads(result.stdout)
+    expected = positions_at(library_result, 20.0)
+    assert [p["target"] for p in printed] == [p.target for p in expected]
+    assert [p["position"] for p in printed] == [p.position for p in expected]
+
+
+def test_positions_table_has_a_row_per_target_on_the_road(large_csv, library_result):
+    result = runner.invoke(app, ["locate", str(large_csv), "--at", "20"])
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    assert lines[0].split() == ["target", "position", "velocity"]
+    assert len(lines) - 1 == len(positions_at(library_result, 20.0)) > 0
+
+
+def test_no_target_on_the_road_is_an_empty_answer(large_csv):
+    result = runner.invoke(app, ["locate", str(large_csv), "--at", "-100", "--json"])
+    assert result.exit_code == 0
+    assert json.loads(result.stdout) == []
+
+
+def test_a_target_trajectory_sampled_by_step(large_csv, library_result):
+    result = runner.invoke(app, ["locate", str(large_csv), "--target", "T2", "--step", "5"])
+    assert result.exit_code == 0, result.output
+    rows = [line.split() for line in result.stdout.splitlines()[1:]]
+    expected = target_trajectory(library_result, "T2", 5.0).samples
+    assert [float(r[0]) for r in rows] == pytest.approx([p.time for p in expected], abs=5e-4)
+    assert [float(r[1]) for r in rows] == pytest.approx([p.position for p in expected], abs=5e-4)
+
+
+def test_trajectory_json_has_passes_segments_and_samples(large_csv):
+    result = runner.invoke(app, ["locate", str(large_csv), "--target", "t3", "--json"])
+    assert result.exit_code == 0, result.output
+    printed = json.loads(result.stdout)
+    assert printed["target"] == "T3"
+    assert len(printed["samples"]) == 101
+    assert len(printed["segments"]) == len(printed["passes"]) - 1
+
+
+def test_segments_of_one_target(large_csv):
+    result = runner.invoke(
+        app, ["locate", str(large_csv), "--segments", "--target", "T1", "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    segments = json.loads(result.stdout)
+    assert segments and {s["target"] for s in segments} == {"T1"}
+    for s in segments:
+        assert s["mean_speed"] == pytest.approx(s["distance"] / s["travel_time"])
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ([], "choose one of --at, --target and --segments"),
+        (["--at", "3", "--segments"], "choose one of"),
+        (["--target", "T99"], "unknown target 'T99'; known: T1..T10"),
+        (["--at", "3", "--step", "1"], "give --target too"),
+        (["--target", "T1", "--step", "0"], "step must be a positive number"),
+    ],
+)
+def test_bad_requests_exit_2_with_the_reason(large_csv, args, message):
+    result = runner.invoke(app, ["locate", str(large_csv), *args])
+    assert result.exit_code == 2
+    assert message in result.stderr
+
+
+def test_associate_plot_writes_png_and_svg(large_csv, tmp_path):
+    png, svg = tmp_path / "out.png", tmp_path / "out.SVG"
+    result = runner.invoke(app, ["associate", str(large_csv), "--plot", str(png)])
+    assert result.exit_code == 0, result.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "wrote time-space plot" in result.stderr
+    result = runner.invoke(
+        app,
+        ["associate", str(large_csv), "--plot", str(svg), "--plot-kind", "backprojected", "--json"],
+    )
+    assert result.exit_code == 0, result.output
+    assert b"<svg" in svg.read_bytes()
+    assert json.loads(result.stdout)["n_targets"] == 10  # the JSON on stdout is unharmed
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--plot", "out.pdf"], "must end in .png or .svg"),
+        (["--plot", "out.png", "--plot-kind", "pie"], "unknown --plot-kind 'pie'"),
+    ],
+)
+def test_associate_plot_rejects_bad_options(large_csv, tmp_path, args, message):
+    result = runner.invoke(app, ["associate", str(large_csv), *args])
+    assert result.exit_code == 2
+    assert message in result.stderr
