@@ -77,7 +77,7 @@ def _peak_rss_mib(pid: int) -> float:
     return float("nan")
 
 
-def run_load(gateways: int, seconds: float) -> dict[str, float | int]:
+def run_load(gateways: int, seconds: float) -> dict[str, float | int | str]:
     """Start a server, drive it with `gateways` concurrent clients for `seconds`; the figures."""
     directory = Path(tempfile.mkdtemp(prefix="roadlink-load-"))
     env = {
