@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -83,6 +84,45 @@ class AssociationResult:
                 cell[2].append(repr(float(d.timestamp[i])))
             writer.writerow([f"T{k + 1}"] + [";".join(v) for cell in cells for v in cell])
         return out.getvalue()
+
+
+def result_from_dict(
+    document: Mapping[str, Any], labels: Mapping[str, str | None] | None = None
+) -> AssociationResult:
+    """The result that `AssociationResult.to_dict` wrote `document` from, rebuilt.
+
+    The document names every detection once, with its group, but not its true label: `labels`
+    gives them by detection id (ids it lacks are unlabelled), and the result is scored again, so
+    that the wrongly grouped detections can be told. Detections come back target by target (each
+    ordered by position) and then the unassigned ones; `groups` keeps the document's numbering,
+    so target "T3" is the same target in both.
+    """
+    labels = labels or {}
+    rows: list[Mapping[str, Any]] = []
+    groups: list[int] = []
+    for k, target in enumerate(document["targets"]):
+        rows.extend(target["detections"])
+        groups.extend([k] * len(target["detections"]))
+    rows.extend(document["unassigned"])
+    groups.extend([-1] * len(document["unassigned"]))
+    n = len(rows)
+    ids = np.array([str(r["detection_id"]) for r in rows], dtype=object).reshape(n)
+    detections = Detections(
+        position=np.array([r["position"] for r in rows], dtype=np.float64).reshape(n),
+        velocity=np.array([r["velocity"] for r in rows], dtype=np.float64).reshape(n),
+        timestamp=np.array([r["timestamp"] for r in rows], dtype=np.float64).reshape(n),
+        sensor_id=np.array([str(r["sensor_id"]) for r in rows], dtype=object).reshape(n),
+        detection_id=ids,
+        target=np.array([labels.get(i) for i in ids], dtype=object).reshape(n),
+    )
+    group_array = np.array(groups, dtype=np.int64).reshape(n)
+    return AssociationResult(
+        associator=str(document["associator"]),
+        params=dict(document["params"]),
+        detections=detections,
+        groups=group_array,
+        metrics=score_grouping(group_array, detections.target),
+    )
 
 
 def build_result(

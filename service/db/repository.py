@@ -7,10 +7,12 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+import orjson
 from sqlalchemy import func, insert, select
 from sqlalchemy.orm import Session
 
 from service.association.detections import Detections
+from service.association.result import AssociationResult, result_from_dict
 from service.db.models import Batch, Deployment, Detection, Job, JobResult, JobState
 
 # Rows per INSERT executemany call: bounds the memory of one statement's parameters.
@@ -202,6 +204,49 @@ def list_jobs(
 def get_job_result(session: Session, *, job_id: uuid.UUID) -> JobResult | None:
     """A succeeded job's stored result, or None."""
     return session.get(JobResult, job_id)
+
+
+def load_job_association(session: Session, *, job: Job) -> AssociationResult | None:
+    """A succeeded job's result as the core's `AssociationResult` (None when it has none).
+
+    The stored document gives every detection and its group; the true labels, which it leaves
+    out, come from the job's detections (`load_detection_labels`), so the result is scored again
+    and its wrongly grouped detections can be shown.
+    """
+    stored = get_job_result(session, job_id=job.id)
+    if stored is None:
+        return None
+    labels = load_detection_labels(
+        session, deployment_id=job.deployment_id, selection=job.selection
+    )
+    return result_from_dict(orjson.loads(stored.result_json), labels)
+
+
+def load_detection_labels(
+    session: Session, *, deployment_id: uuid.UUID, selection: dict[str, Any]
+) -> dict[str, str]:
+    """The true labels of the detections a job selects, by the id its result gives them.
+
+    A result names a detection by its own id, or as `<batch_id>:<detection_id>` when the job's
+    batches reused ids (see `load_detections`): both forms are keys here. A bare id is left out
+    when several selected batches use it, since it is then ambiguous (a time window can gain
+    batches after its job ran). Unlabelled detections are left out.
+    """
+    query = select(Detection.detection_id, Detection.batch_id, Detection.target).where(
+        _selects(deployment_id, selection)
+    )
+    rows = session.execute(query).all()
+    uses: dict[str, int] = {}
+    for detection_id, _, _ in rows:
+        uses[detection_id] = uses.get(detection_id, 0) + 1
+    labels: dict[str, str] = {}
+    for detection_id, batch_id, target in rows:
+        if target is None:
+            continue
+        labels[f"{batch_id}:{detection_id}"] = target
+        if uses[detection_id] == 1:
+            labels[detection_id] = target
+    return labels
 
 
 def count_jobs_by_state(session: Session) -> dict[str, int]:
