@@ -19,9 +19,18 @@ from service.api.errors import (
     problem_responses,
 )
 from service.api.idempotency import forgetting_expired_keys
+from service.api.jobresults import JobResultCache
 from service.api.metrics import ApiMetrics
 from service.api.ratelimit import TokenBuckets
-from service.api.routers import associators, batches, deployments, health, jobs, simulations
+from service.api.routers import (
+    associators,
+    batches,
+    deployments,
+    health,
+    jobs,
+    pages,
+    simulations,
+)
 from service.api.schemas import BatchCreate
 from service.db.engine import make_engine, make_session_factory
 from service.settings import Settings
@@ -72,6 +81,7 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
     app.state.engine = engine
     app.state.sessions = make_session_factory(engine)
     app.state.metrics = ApiMetrics(app.state.sessions)
+    app.state.job_results = JobResultCache()
     limited = settings.auth == "required" and settings.rate_limit_per_second > 0
     app.state.rate_limits = (
         TokenBuckets(settings.rate_limit_per_second, settings.rate_limit_burst) if limited else None
@@ -90,6 +100,8 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
             responses=problem_responses(401, 403, 429),
         )
     app.include_router(health.router)  # open: probes and Prometheus carry no key
+    # For browsers, outside /v1 and the schema; it checks its own link tokens (routers/pages.py).
+    app.include_router(pages.router)
     app.openapi = lambda: _openapi_with_batch_body(app)  # type: ignore[method-assign]
     return app
 

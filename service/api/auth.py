@@ -30,7 +30,7 @@ from service.api.deps import SessionDep, SettingsDep
 from service.api.errors import ApiProblem
 from service.api.ratelimit import TokenBuckets, retry_after_header
 from service.db.apikeys import authenticate_api_key
-from service.db.models import ApiKeyScope, Batch, Job
+from service.db.models import ApiKey, ApiKeyScope, Batch, Job
 
 ANONYMOUS = "anonymous"
 REALM = 'Bearer realm="roadlink"'
@@ -125,6 +125,13 @@ POLICY: dict[tuple[str, str], Rule] = {
     ("GET", "/v1/jobs/{job_id}"): _read_or_ingest(_job_deployment),
     ("GET", "/v1/jobs/{job_id}/result"): _read_or_ingest(_job_deployment),
     ("POST", "/v1/jobs/{job_id}/cancel"): _read_or_ingest(_job_deployment),
+    # Views of a job's result: the same readers as the result itself.
+    ("GET", "/v1/jobs/{job_id}/plot"): _read_or_ingest(_job_deployment),
+    ("GET", "/v1/jobs/{job_id}/positions"): _read_or_ingest(_job_deployment),
+    ("GET", "/v1/jobs/{job_id}/targets/{target}"): _read_or_ingest(_job_deployment),
+    # A page link lets its holder see the job's page (read-only) without a key; whoever may read
+    # the job may hand that on, and the link dies with the key (see service/api/pagelinks.py).
+    ("POST", "/v1/jobs/{job_id}/page-link"): _read_or_ingest(_job_deployment),
     ("GET", "/v1/associators"): ANY_KEY,
     # A simulation writes synthetic detections into a deployment and runs Algorithm 1 in the
     # API process: an administrator's tool, not a gateway's or an analyst's.
@@ -171,12 +178,7 @@ def authorize(
             "the API key is unknown or revoked",
             headers={"WWW-Authenticate": f'{REALM}, error="invalid_token"'},
         )
-    principal = Principal(
-        id=str(row.id),
-        scope=ApiKeyScope(row.scope),
-        deployment_ids=frozenset(row.deployment_ids or ()),
-        prefix=row.prefix,
-    )
+    principal = principal_of_key(row)
     request.state.principal = principal
     buckets: TokenBuckets | None = request.app.state.rate_limits
     if buckets is not None:
@@ -199,14 +201,10 @@ def _check_rule(request: Request, session: Session, principal: Principal) -> Non
     rule = POLICY.get((request.method, str(template)))
     if rule is None:  # check_policy_covers makes this unreachable; fail closed regardless
         raise ApiProblem(403, "this route has no access rule; no key may call it")
-    if principal.scope is ApiKeyScope.ADMIN:
+    if permits(rule, session, principal, dict(request.path_params)):
         return
-    if principal.scope in rule.allows:
-        if principal.scope is not ApiKeyScope.INGEST or rule.deployment_of is None:
-            return
+    if principal.scope in rule.allows and rule.deployment_of is not None:
         deployment = rule.deployment_of(session, dict(request.path_params))
-        if deployment is None or str(deployment) in principal.deployment_ids:
-            return
         raise ApiProblem(
             403,
             f"API key {principal.prefix} may not use deployment {deployment}; it is an ingest "
@@ -218,6 +216,30 @@ def _check_rule(request: Request, session: Session, principal: Principal) -> Non
         f"API key {principal.prefix} has scope '{principal.scope.value}'; "
         f"{request.method} {template} needs {rule.describe()}",
         headers={"WWW-Authenticate": f'{REALM}, error="insufficient_scope"'},
+    )
+
+
+def permits(
+    rule: Rule, session: Session, principal: Principal, path_params: dict[str, str]
+) -> bool:
+    """Whether `principal` may call a route governed by `rule` with these path parameters."""
+    if principal.scope is ApiKeyScope.ADMIN:
+        return True
+    if principal.scope not in rule.allows:
+        return False
+    if principal.scope is not ApiKeyScope.INGEST or rule.deployment_of is None:
+        return True
+    deployment = rule.deployment_of(session, path_params)
+    return deployment is None or str(deployment) in principal.deployment_ids
+
+
+def principal_of_key(row: ApiKey) -> Principal:
+    """The caller an authenticated API key row stands for."""
+    return Principal(
+        id=str(row.id),
+        scope=ApiKeyScope(row.scope),
+        deployment_ids=frozenset(row.deployment_ids or ()),
+        prefix=row.prefix,
     )
 
 

@@ -346,6 +346,160 @@ class AssociationResultRead(BaseModel):
     metrics: MetricsRead | None = Field(description="Null when no detection is labelled.")
 
 
+class TargetPositionRead(BaseModel):
+    target: str = Field(description="The target, named as in the result (T1, T2, ...).")
+    position: float = Field(description="Estimated position along the road.")
+    velocity: float = Field(description="Estimated velocity.")
+
+
+class PositionsRead(BaseModel):
+    """Every target on the observed road at one time, by cubic Hermite interpolation between
+    its sensor passes."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "time": 20.0,
+                    "targets": [
+                        {"target": "T1", "position": 512.3, "velocity": 30.4},
+                        {"target": "T2", "position": 148.9, "velocity": 27.1},
+                    ],
+                }
+            ]
+        }
+    )
+
+    time: float = Field(description="The time asked for.")
+    targets: list[TargetPositionRead] = Field(
+        description="Targets between their first and last pass at that time, in target order; "
+        "the others are off the observed road."
+    )
+
+
+class SensorPassRead(BaseModel):
+    sensor_id: str
+    position: float
+    timestamp: float
+    velocity: float
+    detection_ids: list[str] = Field(
+        description="The detection, or several of one sensor merged into their mean."
+    )
+
+
+class SegmentRead(BaseModel):
+    from_sensor: str
+    to_sensor: str
+    from_position: float
+    to_position: float
+    departure: float = Field(description="Time of the pass at from_sensor.")
+    arrival: float = Field(description="Time of the pass at to_sensor.")
+    travel_time: float
+    distance: float
+    mean_speed: float = Field(
+        description="distance / travel_time; negative when the target runs against the road "
+        "(a sign of wrongly grouped detections)."
+    )
+
+
+class TrackPointRead(BaseModel):
+    time: float
+    position: float
+    velocity: float
+
+
+class TargetTrajectoryRead(BaseModel):
+    """One target's passes, its travel times and mean speeds between sensors, and its track
+    sampled from its first to its last pass."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "target": "T1",
+                    "start": 12.4,
+                    "end": 15.7,
+                    "monotone": True,
+                    "passes": [
+                        {
+                            "sensor_id": "S1",
+                            "position": 0.0,
+                            "timestamp": 12.4,
+                            "velocity": 30.2,
+                            "detection_ids": ["d1"],
+                        },
+                        {
+                            "sensor_id": "S2",
+                            "position": 100.0,
+                            "timestamp": 15.7,
+                            "velocity": 30.5,
+                            "detection_ids": ["d2"],
+                        },
+                    ],
+                    "segments": [
+                        {
+                            "from_sensor": "S1",
+                            "to_sensor": "S2",
+                            "from_position": 0.0,
+                            "to_position": 100.0,
+                            "departure": 12.4,
+                            "arrival": 15.7,
+                            "travel_time": 3.3,
+                            "distance": 100.0,
+                            "mean_speed": 30.3,
+                        }
+                    ],
+                    "samples": [
+                        {"time": 12.4, "position": 0.0, "velocity": 30.2},
+                        {"time": 14.4, "position": 60.9, "velocity": 30.7},
+                        {"time": 15.7, "position": 100.0, "velocity": 30.5},
+                    ],
+                    "dropped_detection_ids": [],
+                }
+            ]
+        }
+    )
+
+    target: str
+    start: float = Field(description="Time of its first pass.")
+    end: float = Field(description="Time of its last pass.")
+    monotone: bool = Field(
+        description="False when it goes backwards along the road between two passes: its "
+        "detections were grouped wrongly, and its positions are not to be trusted."
+    )
+    passes: list[SensorPassRead] = Field(description="One per sensor, in time order.")
+    segments: list[SegmentRead] = Field(description="Between consecutive passes.")
+    samples: list[TrackPointRead] = Field(description="The track, every `step` and at the end.")
+    dropped_detection_ids: list[str] = Field(
+        description="Detections left out: passes at other sensors at the very same time, which "
+        "no moving target can make."
+    )
+
+
+class PageLinkRead(BaseModel):
+    """A link to a job's page that opens in a browser without an API key."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "url": f"http://127.0.0.1:8000/jobs/{EXAMPLE_ID}?token=d74a2839.1767272400.Xq3...",
+                    "expires_at": "2026-01-01T13:00:00Z",
+                }
+            ]
+        }
+    )
+
+    url: str = Field(
+        description="The page, with a token that lets whoever holds the link see this one job's "
+        "page until it expires or the key that made it is revoked."
+    )
+    expires_at: datetime | None = Field(
+        description="When the link stops working; null when authentication is disabled (the "
+        "page needs no token)."
+    )
+
+
 class AssociatorRead(BaseModel):
     """An associator the service can run."""
 

@@ -7,9 +7,11 @@ import time
 import uuid
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager, suppress
+from dataclasses import asdict
+from datetime import UTC, datetime
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, FastAPI, Query, Request, Response
+from fastapi import APIRouter, FastAPI, Path, Query, Request, Response
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.concurrency import run_in_threadpool
 
@@ -17,10 +19,23 @@ from service.api.auth import principal_of
 from service.api.deps import SessionDep, SessionFactoryDep, SettingsDep
 from service.api.errors import ApiProblem, ProblemItem, problem_responses
 from service.api.idempotency import IdempotencyKeyHeader, commit_job, replayed_job, request_sha256
+from service.api.jobresults import SucceededJobDep, unfinished_detail
+from service.api.pagelinks import DEFAULT_LIFETIME_SECONDS, MAX_LIFETIME_SECONDS, page_token
 from service.api.routers.batches import checked_associate
-from service.api.schemas import AssociateRequest, AssociationResultRead, JobCreate, JobRead
+from service.api.schemas import (
+    AssociateRequest,
+    AssociationResultRead,
+    JobCreate,
+    JobRead,
+    PageLinkRead,
+    PositionsRead,
+    TargetPositionRead,
+    TargetTrajectoryRead,
+)
+from service.association.localisation import positions_at, target_index, target_trajectory
 from service.db import repository
-from service.db.models import Job, JobState
+from service.db.models import ApiKey, Job, JobState
+from service.plots import PlotFormat, PlotKind
 from service.queue.jobs import cancel_job, enqueue_job
 from service.queue.wakeup import FinishedJobs
 
@@ -239,7 +254,7 @@ async def get_result(
         if finished is not None and finished_jobs is not None:
             finished_jobs.unwatch(job_id, finished)
     if job.state != JobState.SUCCEEDED.value:
-        raise ApiProblem(409, _unfinished_detail(job))
+        raise ApiProblem(409, unfinished_detail(job))
     stored = await run_in_threadpool(_read_result, sessions, job_id)
     if stored is None:  # succeeded without a result cannot happen: both commit together
         raise ApiProblem(500, f"job {job_id} succeeded but its result is missing")
@@ -247,6 +262,150 @@ async def get_result(
     if format == "csv":
         return Response(matrix_csv, media_type="text/csv")
     return Response(result_json, media_type="application/json")
+
+
+PLOT_MEDIA_TYPES = {"png": "image/png", "svg": "image/svg+xml"}
+# A succeeded job's result never changes; it is the caller's own data, so caches stay private.
+RESULT_CACHE_CONTROL = "private, max-age=86400"
+
+
+@router.get(
+    "/{job_id}/plot",
+    name="get_plot",
+    response_class=Response,
+    responses={
+        200: {
+            "description": "The plot, as PNG or SVG.",
+            "content": {
+                "image/png": {"schema": {"type": "string", "format": "binary"}},
+                "image/svg+xml": {"schema": {"type": "string"}},
+            },
+        },
+        **problem_responses(404, 409, 422),
+    },
+    summary="Plot a job's result",
+)
+def get_plot(
+    job: SucceededJobDep,
+    kind: Annotated[
+        PlotKind,
+        Query(
+            description="time-space: position against time, one line per target; "
+            "backprojected: the paper's (t', v) scatter coloured by group."
+        ),
+    ] = "time-space",
+    format: Annotated[PlotFormat, Query(description="png or svg.")] = "png",
+) -> Response:
+    """The plot `roadlink associate --plot` draws for the same detections. When they are
+    labelled, the wrongly grouped ones are ringed in red. In SVG each target is a group with id
+    `target-T<k>`, and the highlights are the groups `unassigned` and `wrongly-grouped`. 409
+    while the job is unfinished."""
+    return Response(
+        job.plot(kind, format),
+        media_type=PLOT_MEDIA_TYPES[format],
+        headers={"Cache-Control": RESULT_CACHE_CONTROL},
+    )
+
+
+@router.get(
+    "/{job_id}/positions",
+    name="get_positions",
+    response_model=PositionsRead,
+    responses=problem_responses(404, 409, 422),
+    summary="Where every target is at a time",
+)
+def get_positions(
+    job: SucceededJobDep,
+    t: Annotated[
+        float, Query(allow_inf_nan=False, description="The time, in the detections' units.")
+    ],
+) -> PositionsRead:
+    """Every target on the observed road at time t (between its first and last sensor pass),
+    with its position and velocity estimated by cubic Hermite interpolation through its passes.
+    Targets before their first or after their last pass are not listed. 409 while the job is
+    unfinished."""
+    return PositionsRead(
+        time=t,
+        targets=[
+            TargetPositionRead(target=p.target, position=p.position, velocity=p.velocity)
+            for p in positions_at(job.tracks, t)
+        ],
+    )
+
+
+@router.get(
+    "/{job_id}/targets/{target}",
+    name="get_target",
+    response_model=TargetTrajectoryRead,
+    responses=problem_responses(404, 409, 422),
+    summary="One target's trajectory, travel times and mean speeds",
+)
+def get_target(
+    job: SucceededJobDep,
+    target: Annotated[str, Path(description="The target as the result names it: T1, T2, ...")],
+    step: Annotated[
+        float | None,
+        Query(
+            gt=0,
+            allow_inf_nan=False,
+            description="Sample the track every `step` time units (default: 100 intervals "
+            "from the first to the last pass; at most 100,000 samples).",
+        ),
+    ] = None,
+) -> TargetTrajectoryRead:
+    """A target's sensor passes, the travel time and mean speed between consecutive sensors,
+    and its track (position and velocity by cubic Hermite interpolation) sampled from its first
+    to its last pass. 404 for a target the result does not have."""
+    try:
+        track = job.tracks[target_index(target, len(job.tracks))]
+    except KeyError as exc:
+        raise ApiProblem(404, f"job {job.job_id} has no target: {exc.args[0]}") from None
+    try:
+        trajectory = target_trajectory(track, step=step)
+    except ValueError as exc:
+        raise ApiProblem(
+            422, str(exc), errors=[ProblemItem(field="step", message=str(exc))]
+        ) from None
+    return TargetTrajectoryRead.model_validate(asdict(trajectory))
+
+
+@router.post(
+    "/{job_id}/page-link",
+    name="create_page_link",
+    status_code=201,
+    response_model=PageLinkRead,
+    responses=problem_responses(404, 422),
+    summary="Make a link to a job's page for a browser",
+)
+def create_page_link(
+    job_id: uuid.UUID,
+    request: Request,
+    session: SessionDep,
+    expires_in: Annotated[
+        int,
+        Query(
+            ge=60,
+            le=MAX_LIFETIME_SECONDS,
+            description="Seconds the link works for (a minute to a week).",
+        ),
+    ] = DEFAULT_LIFETIME_SECONDS,
+) -> PageLinkRead:
+    """A link to the job's page (`/jobs/{job_id}`: status and progress while it runs, then the
+    plot, the metrics and the targets) that opens in a browser without an API key. The link
+    carries a token signed for this job only; it stops working when it expires or when the key
+    that asked for it is revoked. Anyone holding the link can read the page until then, so
+    share it as you would the result."""
+    _require_job(session, job_id)
+    url = str(request.url_for("job_page", job_id=str(job_id)))
+    principal = principal_of(request)
+    key = None if principal.prefix is None else session.get(ApiKey, uuid.UUID(principal.id))
+    if key is None:  # authentication is disabled: the page needs no token
+        return PageLinkRead(url=url, expires_at=None)
+    expires = int(time.time()) + expires_in
+    return PageLinkRead(
+        url=f"{url}?token={page_token(key, job_id, expires)}",
+        expires_at=datetime.fromtimestamp(expires, UTC),
+    )
 
 
 @router.post(
@@ -290,14 +449,3 @@ def _read_result(sessions: sessionmaker[Session], job_id: uuid.UUID) -> tuple[st
     with sessions() as session:
         stored = repository.get_job_result(session, job_id=job_id)
         return None if stored is None else (stored.result_json, stored.matrix_csv)
-
-
-def _unfinished_detail(job: Job) -> str:
-    if job.state == JobState.FAILED.value:
-        return f"job {job.id} failed, so it has no result: {job.error}"
-    if job.state == JobState.CANCELLED.value:
-        return f"job {job.id} was cancelled, so it has no result"
-    return (
-        f"job {job.id} is {job.state} ({job.progress:.0%} done); ask again later, "
-        "or add ?wait=SECONDS to wait for it"
-    )
