@@ -264,11 +264,13 @@ def target_trajectory(
     else:
         if step is None:
             step = span / DEFAULT_SAMPLES
-        count = math.floor(span / step) + 1
-        if count > MAX_SAMPLES:
+        intervals = span / step  # infinite for a subnormal step: compared before flooring
+        if not intervals < MAX_SAMPLES:
             raise ValueError(
-                f"step {step:g} gives {count} samples over {span:g}; the limit is {MAX_SAMPLES}"
+                f"step {step:g} gives {intervals + 1:.0f} samples over {span:g}; "
+                f"the limit is {MAX_SAMPLES}"
             )
+        count = math.floor(intervals) + 1
         times = track.start + step * np.arange(count)
         if times[-1] < track.end:
             times = np.append(times, track.end)

@@ -130,6 +130,8 @@ def test_trajectory_sampling_and_its_errors():
         target_trajectory(result, "T1", step=0.0)
     with pytest.raises(ValueError, match="limit"):
         target_trajectory(result, "T1", step=9.0 / (MAX_SAMPLES + 1))
+    with pytest.raises(ValueError, match="limit"):  # span / step overflows to infinity
+        target_trajectory(result, "T1", step=5e-324)
     with pytest.raises(KeyError, match=r"T1\.\.T1"):
         target_track(result, "T2")
 
