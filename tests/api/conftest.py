@@ -1,14 +1,20 @@
-"""Helpers for API tests."""
+"""Helpers for API tests (the security tests use them too)."""
 
 from __future__ import annotations
 
+import uuid
+from collections.abc import Callable
 from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import Engine
 
 from service.association.csvio import write_detections_csv
 from service.association.detections import Detections
+from service.db.apikeys import create_api_key
+from service.db.engine import make_session_factory, transaction
+from service.db.models import ApiKeyScope
 from service.simulation import preset, simulate
 
 
@@ -53,3 +59,21 @@ def assert_problem(response: Any, status: int) -> dict[str, Any]:
     body = dict(response.json())
     assert body["status"] == status and body["title"] and body["detail"]
     return body
+
+
+MakeKey = Callable[..., str]
+
+
+@pytest.fixture
+def make_key(engine: Engine) -> MakeKey:
+    """Create a key of `scope` (ingest keys name their deployments); returns the key."""
+
+    def make(scope: str, *deployments: str) -> str:
+        with transaction(make_session_factory(engine)) as session:
+            return create_api_key(
+                session,
+                scope=ApiKeyScope(scope),
+                deployment_ids=[uuid.UUID(d) for d in deployments],
+            ).key
+
+    return make

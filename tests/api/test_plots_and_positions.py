@@ -23,8 +23,8 @@ from service.association.result import AssociationResult
 from service.db import repository
 from service.db.engine import make_session_factory
 from service.queue.worker import Worker
-from tests.api.conftest import assert_problem
-from tests.security.conftest import MakeKey, bearer, make_key  # noqa: F401 (a fixture)
+from tests.api.conftest import MakeKey, assert_problem
+from tests.security.conftest import bearer
 
 SVG = "{http://www.w3.org/2000/svg}"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -182,6 +182,7 @@ def test_unknown_targets_are_404(client: TestClient, done: dict[str, Any]) -> No
         ("targets/T1", {"step": 0}, "step"),
         ("targets/T1", {"step": "inf"}, "step"),
         ("targets/T1", {"step": 1e-9}, "step"),  # too many samples
+        ("targets/T1", {"step": 5e-324}, "step"),  # span / step overflows (found by fuzzing)
     ],
 )
 def test_bad_parameters_are_422(
@@ -247,4 +248,9 @@ def test_the_route_names_follow_the_contract(client: TestClient) -> None:
         if re.match(r"/v1/jobs/\{job_id\}/(plot|positions|targets|page-link)", path)
         for op in ops.values()
     }
-    assert ids == {"jobs-get_plot", "jobs-get_positions", "jobs-get_target", "jobs-create_page_link"}
+    assert ids == {
+        "jobs-get_plot",
+        "jobs-get_positions",
+        "jobs-get_target",
+        "jobs-create_page_link",
+    }

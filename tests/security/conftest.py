@@ -9,8 +9,7 @@ import socket
 import subprocess
 import sys
 import time
-import uuid
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,29 +17,10 @@ import httpx
 import pytest
 from sqlalchemy import Engine, func, select
 
-from service.db.apikeys import create_api_key
-from service.db.engine import make_session_factory, transaction
-from service.db.models import ApiKeyScope, Base
+from service.db.models import Base
 
 # The API tests' data fixtures: the paper's large scenario, as detections and as CSV.
-from tests.api.conftest import deployment, paper_batch, paper_csv  # noqa: F401
-
-MakeKey = Callable[..., str]
-
-
-@pytest.fixture
-def make_key(engine: Engine) -> MakeKey:
-    """Create a key of `scope` (ingest keys name their deployments); returns the key."""
-
-    def make(scope: str, *deployments: str) -> str:
-        with transaction(make_session_factory(engine)) as session:
-            return create_api_key(
-                session,
-                scope=ApiKeyScope(scope),
-                deployment_ids=[uuid.UUID(d) for d in deployments],
-            ).key
-
-    return make
+from tests.api.conftest import MakeKey, deployment, make_key, paper_batch, paper_csv  # noqa: F401
 
 
 def bearer(key: str) -> dict[str, str]:
