@@ -1,0 +1,182 @@
+"""The job page in a real browser: headless Chromium (Debian's `chromium`) opens the page of a job
+run to completion by a real `roadlink serve`, through a page link (no API key in the browser).
+The rendered DOM must hold the plot and the targets table; the screenshot is kept in the test's
+directory and copied to artifacts/job-page.png for a person to look at."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from html.parser import HTMLParser
+from pathlib import Path
+
+import httpx
+import pytest
+
+from service.association.csvio import write_detections_csv
+from service.simulation import preset, simulate
+from tests.security.conftest import free_port
+
+pytestmark = pytest.mark.slow
+
+CHROMIUM = Path("/usr/bin/chromium")
+REPO = Path(__file__).resolve().parents[2]
+ARTIFACT = REPO / "artifacts" / "job-page.png"
+# Headless, sandboxless (containers run as root), and quiet: no network beyond the page.
+CHROMIUM_FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--hide-scrollbars",
+)
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
+    """`roadlink serve --workers 1` on a fresh SQLite file; its URL and an admin key."""
+    directory = tmp_path_factory.mktemp("page")
+    env = {
+        **os.environ,
+        "ROADLINK_DATABASE_URL": f"sqlite:///{directory / 'roadlink.db'}",
+        "ROADLINK_POLL_SECONDS": "0.05",
+        "ROADLINK_LOG_LEVEL": "warning",
+    }
+    created = subprocess.run(
+        [sys.executable, "-m", "service.cli", "keys", "create", "--scope", "admin"],
+        cwd=directory,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert created.returncode == 0, created.stderr
+    port = free_port()
+    log_path = directory / "serve.log"
+    with log_path.open("w") as log:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", "1"],
+            cwd=directory,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+        url = f"http://127.0.0.1:{port}"
+        try:
+            deadline = time.monotonic() + 60
+            while True:
+                assert process.poll() is None, log_path.read_text()
+                try:
+                    if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                assert time.monotonic() < deadline, "the server did not become ready"
+                time.sleep(0.1)
+            yield url, created.stdout.strip()
+        finally:
+            process.send_signal(signal.SIGINT)
+            try:
+                process.wait(20)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+def _chromium(profile: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [str(CHROMIUM), *CHROMIUM_FLAGS, f"--user-data-dir={profile}", *args],
+        capture_output=True,
+        text=True,
+        timeout=90,
+    )
+
+
+class RenderedDom(HTMLParser):
+    """What the test checks in the DOM Chromium rendered."""
+
+    def __init__(self, html: str) -> None:
+        super().__init__()
+        self.stack: list[str] = []
+        self.svg_in_plot = False
+        self.target_ids: list[str] = []
+        self.in_targets = False
+        self.headers: list[str] = []
+        self._in_th = False
+        self.feed(html)
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        a = dict(attrs)
+        if tag == "svg" and "figure#plot" in self.stack:
+            self.svg_in_plot = True
+        if tag == "table" and a.get("id") == "targets":
+            self.in_targets = True
+        if self.in_targets and tag == "tr" and a.get("class") == "target":
+            self.target_ids.append(str(a.get("id")))
+        self._in_th = self.in_targets and tag == "th"
+        if tag not in ("meta", "link", "br", "img", "input", "hr"):
+            self.stack.append(f"{tag}#{a['id']}" if a.get("id") else tag)
+
+    def handle_endtag(self, tag: str) -> None:
+        while self.stack:
+            top = self.stack.pop()
+            if top.split("#")[0] == tag:
+                if top == "table#targets":
+                    self.in_targets = False
+                break
+        self._in_th = False
+
+    def handle_data(self, data: str) -> None:
+        if self._in_th and data.strip():
+            self.headers.append(data.strip())
+
+
+def test_the_job_page_in_chromium(server: tuple[str, str], tmp_path: Path) -> None:
+    if not CHROMIUM.exists():
+        pytest.skip(
+            "no /usr/bin/chromium: install Debian's chromium (apt-get install chromium) to run "
+            "the browser test of the job page"
+        )
+    url, key = server
+    detections = simulate(preset("large", false_alarm_rate=0.05), seed=2).detections
+    with httpx.Client(base_url=url, headers={"Authorization": f"Bearer {key}"}, timeout=30) as http:
+        deployment = http.post("/v1/deployments", json={"name": "browser"}).json()["id"]
+        batch = http.post(
+            f"/v1/deployments/{deployment}/batches",
+            content=write_detections_csv(detections),
+            headers={"content-type": "text/csv"},
+            params={"associator": "kmeans++"},
+        )
+        assert batch.status_code == 201, batch.text
+        job = batch.json()["job"]["id"]
+        result = http.get(f"/v1/jobs/{job}/result", params={"wait": 30})
+        assert result.status_code == 200, result.text
+        link = http.post(f"/v1/jobs/{job}/page-link").json()["url"]
+
+    dumped = _chromium(tmp_path / "profile-dom", "--dump-dom", link)
+    assert dumped.returncode == 0, dumped.stderr[-2000:]
+    dom = RenderedDom(dumped.stdout)
+    assert dom.svg_in_plot, "the plot is not in the rendered page"
+    n_targets = result.json()["n_targets"]
+    assert dom.target_ids == [f"target-T{k + 1}" for k in range(n_targets)]
+    assert {"Target", "Detections", "True target"} <= set(dom.headers)
+    assert "wrongly grouped" in dumped.stdout  # labelled, with false alarms: some are wrong
+
+    screenshot = tmp_path / "job-page.png"
+    shot = _chromium(
+        tmp_path / "profile-shot", f"--screenshot={screenshot}", "--window-size=1280,1600", link
+    )
+    assert shot.returncode == 0, shot.stderr[-2000:]
+    assert screenshot.read_bytes().startswith(b"\x89PNG\r\n\x1a\n")
+    assert screenshot.stat().st_size > 50_000  # a rendered page, not a blank one
+    ARTIFACT.parent.mkdir(exist_ok=True)
+    shutil.copyfile(screenshot, ARTIFACT)
