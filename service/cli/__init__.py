@@ -16,3 +16,6 @@ from service.cli import analysis, reproduce  # noqa: E402,F401
 
 __all__ = ["app"]
 from service.cli import server  # noqa: E402,F401
+
+# isort: split
+from service.cli import sumo  # noqa: E402,F401

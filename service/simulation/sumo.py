@@ -376,7 +376,8 @@ def parse_detector_output(
     return Detections.from_columns(
         [sensors[s] for s, _ in order],
         [max(first[k][1], MIN_REPORTED_SPEED) for k in order],
-        [first[k][0] - origin for k in order],
+        # SUMO writes times to 0.01 s; rounding drops the float noise of the subtraction.
+        [round(first[k][0] - origin, 6) for k in order],
         sensor_id=[s for s, _ in order],
         target=[vehicle for _, vehicle in order],
     )
