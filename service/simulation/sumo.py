@@ -442,12 +442,10 @@ def apply_detector_faults(
     )
 
 
-def find_sumo_home() -> Path:
-    """Where SUMO lives: the `eclipse-sumo` package, else $SUMO_HOME, else `sumo` on the PATH.
-
-    Raises SumoNotInstalledError, saying how to install it, when none has the binaries.
-    """
+def sumo_home_candidates() -> list[Path]:
+    """Where SUMO may live, in order: the `eclipse-sumo` package, $SUMO_HOME, `sumo` on the PATH."""
     candidates: list[Path] = []
+    # find_spec, not import: importing the package would set SUMO_HOME in our environment.
     spec = importlib.util.find_spec("sumo")
     if spec is not None and spec.submodule_search_locations:
         candidates.extend(Path(p) for p in spec.submodule_search_locations)
@@ -456,7 +454,15 @@ def find_sumo_home() -> Path:
     on_path = shutil.which("sumo")
     if on_path:
         candidates.append(Path(on_path).resolve().parent.parent)
-    for home in candidates:
+    return candidates
+
+
+def find_sumo_home() -> Path:
+    """The first SUMO installation with the binaries `run_sumo` needs.
+
+    Raises SumoNotInstalledError, saying how to install it, when there is none.
+    """
+    for home in sumo_home_candidates():
         if (home / "bin" / "sumo").is_file() and (home / "bin" / "netconvert").is_file():
             return home
     raise SumoNotInstalledError(
