@@ -1,0 +1,167 @@
+"""Accuracy of every registered associator on realistic traffic simulated by Eclipse SUMO.
+
+Each SUMO scenario (service/simulation/sumo.py) is simulated with seeds 0 .. N-1 and every
+associator in the registry groups it with its default parameters; supervised ones (the SVMs) are
+given the labels and scored out of fold, as the paper did. The table gives the mean, the standard
+deviation and the worst seed's accuracy; a run longer than `--timeout` seconds is stopped and
+counted as timed out (metrics null in the JSON). Writes benchmarks/results/sumo_accuracy.json.
+
+    pip install 'roadlink[sumo]'
+    python benchmarks/sumo_accuracy.py --seeds 5 --export /work/sumo-data
+    python benchmarks/sumo_accuracy.py --data /work/sumo-data    # the CSVs, without SUMO
+    python benchmarks/sumo_accuracy.py --associators assignment --scenarios sumo-dense
+
+`--export DIR` also writes each simulated case as DIR/<scenario>-seed<N>.csv; `--data DIR` reads
+those files instead of running SUMO, so the table can be remade where SUMO is not installed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import time
+from pathlib import Path
+
+import numpy as np
+
+from service.association import associate
+from service.association.associators import ASSOCIATORS
+from service.association.csvio import read_detections_csv, write_detections_csv
+from service.association.detections import CLUTTER, Detections
+from service.simulation.sumo import SUMO_SCENARIOS, run_sumo, sumo_scenario
+
+RESULTS = Path(__file__).parent / "results" / "sumo_accuracy.json"
+
+
+def case_file(directory: Path, scenario: str, seed: int) -> Path:
+    """Where a simulated case is exported to, and read back from."""
+    return directory / f"{scenario}-seed{seed}.csv"
+
+
+def load_case(scenario: str, seed: int, data: Path | None, export: Path | None) -> Detections:
+    """The detections of one case: from `data` when given, else simulated by SUMO."""
+    if data is not None:
+        return read_detections_csv(case_file(data, scenario, seed).read_text())
+    detections = run_sumo(sumo_scenario(scenario), seed=seed)
+    if export is not None:
+        export.mkdir(parents=True, exist_ok=True)
+        case_file(export, scenario, seed).write_text(write_detections_csv(detections))
+    return detections
+
+
+def timed_accuracy(
+    detections: Detections, associator: str, timeout: float
+) -> tuple[dict[str, float] | None, float]:
+    """The associator's metrics and seconds, in a child process killed after `timeout` seconds.
+
+    libsvm has no time limit, and on some traffic the linear SVM does not converge for many
+    minutes; such a run is recorded as timed out (None) instead of stalling the table.
+    """
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        start = time.perf_counter()
+        pending = pool.apply_async(_metrics, (detections, associator))
+        try:
+            metrics = pending.get(timeout)
+        except multiprocessing.TimeoutError:
+            pool.terminate()
+            return None, timeout
+        return metrics, time.perf_counter() - start
+
+
+def _metrics(detections: Detections, associator: str) -> dict[str, float]:
+    metrics = associate(detections, associator).metrics
+    assert metrics is not None  # SUMO's detections are all labelled
+    return metrics.to_dict()
+
+
+def cell(metrics: list[dict[str, float] | None]) -> str:
+    """Mean ± std (worst) of the accuracies, and how many runs timed out."""
+    accuracy = [m["accuracy"] for m in metrics if m is not None]
+    timed_out = len(metrics) - len(accuracy)
+    if not accuracy:
+        return f"timed out ({timed_out} of {len(metrics)})"
+    text = f"{np.mean(accuracy):.1%} ± {np.std(accuracy):.1%} ({min(accuracy):.0%})"
+    return text + (f", {timed_out} of {len(metrics)} timed out" if timed_out else "")
+
+
+def describe(detections: Detections) -> dict[str, float]:
+    """Size of a case: detections, vehicles, and the share of vehicles seen at every sensor."""
+    labels = detections.target[detections.target != CLUTTER].astype(str)
+    counts = np.unique(labels, return_counts=True)[1]
+    return {
+        "detections": len(detections),
+        "vehicles": int(counts.size),
+        "complete_tracks": float(np.mean(counts == detections.sensor_positions.size)),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--scenarios", nargs="+", default=list(SUMO_SCENARIOS))
+    parser.add_argument("--associators", nargs="+", default=list(ASSOCIATORS))
+    parser.add_argument("--data", type=Path, help="Read the cases' CSVs from here (no SUMO).")
+    parser.add_argument("--export", type=Path, help="Also write the simulated cases' CSVs here.")
+    parser.add_argument(
+        "--timeout", type=float, default=60.0, help="Seconds an associator may take per case."
+    )
+    parser.add_argument("--output", type=Path, default=RESULTS)
+    args = parser.parse_args()
+
+    rows: list[dict[str, object]] = []
+    sizes: dict[str, list[dict[str, float]]] = {}
+    print(f"Accuracy over seeds 0-{args.seeds - 1}: mean ± std (worst)\n")
+    print("| scenario | " + " | ".join(args.associators) + " |")
+    print("|---" * (len(args.associators) + 1) + "|")
+    for scenario in args.scenarios:
+        scores: dict[str, list[dict[str, float] | None]] = {n: [] for n in args.associators}
+        seconds: dict[str, list[float]] = {name: [] for name in args.associators}
+        for seed in range(args.seeds):
+            detections = load_case(scenario, seed, args.data, args.export)
+            sizes.setdefault(scenario, []).append(describe(detections))
+            for name in args.associators:
+                metrics, spent = timed_accuracy(detections, name, args.timeout)
+                scores[name].append(metrics)
+                seconds[name].append(spent)
+        cells = []
+        for name in args.associators:
+            rows.append(
+                {
+                    "scenario": scenario,
+                    "associator": name,
+                    "metrics": scores[name],
+                    "seconds": seconds[name],
+                }
+            )
+            cells.append(cell(scores[name]))
+        print(f"| {scenario} | " + " | ".join(cells) + " |", flush=True)
+
+    print("\n| scenario | detections | vehicles | seen at every sensor |\n|---|---|---|---|")
+    for scenario, cases in sizes.items():
+        mean = {key: float(np.mean([c[key] for c in cases])) for key in cases[0]}
+        print(
+            f"| {scenario} | {mean['detections']:.0f} | {mean['vehicles']:.0f} | "
+            f"{mean['complete_tracks']:.0%} |"
+        )
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(
+        json.dumps(
+            {
+                "seeds": args.seeds,
+                "timeout_seconds": args.timeout,
+                "scenarios": {
+                    name: {"description": SUMO_SCENARIOS[name].description, "cases": sizes[name]}
+                    for name in args.scenarios
+                },
+                "rows": rows,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+    print(f"\nwritten to {args.output}")
+
+
+if __name__ == "__main__":
+    main()
