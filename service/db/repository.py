@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import itertools
 import uuid
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from sqlalchemy import func, insert, select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from service.association.detections import Detections
@@ -15,6 +16,18 @@ from service.db.models import Batch, Deployment, Detection, Job, JobResult, JobS
 
 # Rows per INSERT executemany call: bounds the memory of one statement's parameters.
 INSERT_CHUNK = 5_000
+# The detection columns a batch insert writes (the key is the database's), in this order.
+DETECTION_INSERT_COLUMNS = (
+    "batch_id",
+    "deployment_id",
+    "row",
+    "position",
+    "velocity",
+    "timestamp",
+    "sensor_id",
+    "detection_id",
+    "target",
+)
 
 
 def create_deployment(
@@ -85,32 +98,36 @@ def insert_batch(
     )
     session.add(batch)
     session.flush()
-    columns = zip(
-        d.position.tolist(),
-        d.velocity.tolist(),
-        d.timestamp.tolist(),
-        d.sensor_id.tolist(),
-        d.detection_id.tolist(),
-        d.target.tolist(),
-        strict=True,
+    connection = session.connection()
+    dialect = connection.dialect
+    table = Detection.__table__
+    # The ids are bound once here, as the column type binds them (32 hex digits on SQLite, a
+    # native uuid on PostgreSQL), and the rows go to the driver's executemany as plain tuples:
+    # the ORM's bulk insert spent more than the database did, building and binding a dict per row.
+    bind_id = table.c.batch_id.type.bind_processor(dialect) or (lambda value: value)
+    batch_key, deployment_key = bind_id(batch.id), bind_id(deployment_id)
+    rows = list(
+        zip(
+            itertools.repeat(batch_key),
+            itertools.repeat(deployment_key),
+            range(1, len(d) + 1),
+            d.position.tolist(),
+            d.velocity.tolist(),
+            d.timestamp.tolist(),
+            d.sensor_id.tolist(),
+            d.detection_id.tolist(),
+            d.target.tolist(),
+            strict=False,  # the repeats are endless; the row numbers set the length
+        )
     )
-    rows = [
-        {
-            "batch_id": batch.id,
-            "deployment_id": deployment_id,
-            "row": i,
-            "position": p,
-            "velocity": v,
-            "timestamp": t,
-            "sensor_id": s,
-            "detection_id": did,
-            "target": target,
-        }
-        for i, (p, v, t, s, did, target) in enumerate(columns, start=1)
-    ]
-    statement = insert(Detection)
+    placeholder = "?" if dialect.paramstyle == "qmark" else "%s"
+    names = ", ".join(dialect.identifier_preparer.quote(c) for c in DETECTION_INSERT_COLUMNS)
+    statement = (
+        f"INSERT INTO {dialect.identifier_preparer.format_table(table)} ({names}) "
+        f"VALUES ({', '.join([placeholder] * len(DETECTION_INSERT_COLUMNS))})"
+    )
     for start in range(0, len(rows), INSERT_CHUNK):
-        session.execute(statement, rows[start : start + INSERT_CHUNK])
+        connection.exec_driver_sql(statement, rows[start : start + INSERT_CHUNK])
     return batch
 
 
