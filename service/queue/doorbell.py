@@ -87,11 +87,17 @@ class Listener:
         directory = channel_directory(database_url, channel)
         if directory is None:
             raise ValueError(f"no doorbell for {database_url!r}: not a SQLite file")
-        directory.mkdir(parents=True, exist_ok=True, mode=0o700)
         self.path = directory / f"{os.getpid()}-{uuid.uuid4().hex[:8]}.sock"
         self._socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
-            self._socket.bind(str(self.path))
+            for attempt in range(2):
+                directory.mkdir(parents=True, exist_ok=True, mode=0o700)
+                try:
+                    self._socket.bind(str(self.path))
+                    break
+                except FileNotFoundError:  # the last listener removed the directory meanwhile
+                    if attempt:
+                        raise
         except OSError:
             self._socket.close()
             raise
@@ -118,10 +124,14 @@ class Listener:
                 return messages
 
     def close(self) -> None:
-        """Stop listening and remove the socket."""
+        """Stop listening and remove the socket, and its directories once they are empty (so
+        that temporary databases leave nothing behind)."""
         self._socket.close()
         with contextlib.suppress(OSError):
             self.path.unlink()
+        with contextlib.suppress(OSError):  # another listener's socket is still there
+            self.path.parent.rmdir()
+            self.path.parent.parent.rmdir()
 
 
 def listen(database_url: str, channel: str) -> Listener | None:
