@@ -1,8 +1,9 @@
 """A real `roadlink serve` for the service sections: its own process, free loopback port, fresh
 database, an admin API key; measured from outside over HTTP.
 
-Authentication stays on (as in production): the key is made with `roadlink keys create --scope
-admin`, and sent on every request. The per-key rate limit is turned off
+Authentication stays on (as in production): an admin key is made as `roadlink keys create
+--scope admin` makes it (`create_api_key`, here in process: a `roadlink` subprocess would cost
+seconds of imports per server), and sent on every request. The per-key rate limit is turned off
 (`ROADLINK_RATE_LIMIT_PER_SECOND=0`), since one benchmark client sends far more than a gateway.
 """
 
@@ -23,6 +24,10 @@ from typing import Any
 import httpx
 
 from service.association.detections import Detections
+from service.db.apikeys import create_api_key
+from service.db.engine import make_engine, make_session_factory, transaction
+from service.db.migrate import upgrade_to_head
+from service.db.models import ApiKeyScope
 
 READY_TIMEOUT_SECONDS = 90.0
 REQUEST_TIMEOUT_SECONDS = 300.0
@@ -64,19 +69,15 @@ def _environment(database_url: str, extra: dict[str, str] | None) -> dict[str, s
     return env
 
 
-def _roadlink(argv: list[str], env: dict[str, str], cwd: Path) -> str:
-    done = subprocess.run(
-        [sys.executable, "-m", "service.cli", *argv],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    if done.returncode != 0:
-        raise RuntimeError(f"roadlink {' '.join(argv)} failed: {done.stderr.strip()}")
-    return done.stdout.strip()
+def admin_key(database_url: str) -> str:
+    """Migrate the database and create an admin API key in it; the key."""
+    upgrade_to_head(database_url)
+    engine = make_engine(database_url)
+    try:
+        with transaction(make_session_factory(engine)) as session:
+            return create_api_key(session, scope=ApiKeyScope.ADMIN, name="bench").key
+    finally:
+        engine.dispose()
 
 
 @contextmanager
@@ -93,8 +94,7 @@ def live_service(
         workdir = Path(directory)
         url = database_url or f"sqlite:///{workdir / 'roadlink.db'}"
         env = _environment(url, environment)
-        # Migrates the fresh database and prints the new key alone on stdout.
-        key = _roadlink(["keys", "create", "--scope", "admin", "--name", "bench"], env, workdir)
+        key = admin_key(url)
         port = free_port()
         argv = ["serve", "--host", "127.0.0.1", "--port", str(port)]
         if workers is not None:

@@ -139,7 +139,8 @@ def measure_both(
     limits = {kind: LimitDatabase(directory / f"limit-{kind}.db") for kind in payloads}
     parsers = {"json": json_rows, "csv": csv_rows}
     try:
-        with live_service() as service, service.client() as client:
+        # No workers: nothing here runs jobs, and idle workers would only share the CPU.
+        with live_service(workers=0) as service, service.client() as client:
             deployment = create_deployment(client)
             url = f"/v1/deployments/{deployment}/batches"
             for body, content_type in payloads.values():  # warm-up: imports, first-use caches
@@ -211,7 +212,8 @@ def measure_ingest(plan: IngestPlan) -> Section:
     )
     return Section(
         NAME,
-        f"A {n:,}-detection batch POSTed to `roadlink serve` (SQLite, WAL, synchronous=FULL) "
+        f"A {n:,}-detection batch POSTed to `roadlink serve --workers 0` (SQLite, WAL, "
+        "synchronous=FULL) "
         "until its 201, beside the limit: the same body parsed with orjson (or csv) and its rows "
         "inserted with sqlite3 executemany into the same schema in one committed transaction. "
         f"Median [min, max] of {plan.repeats} repeats, service and limit interleaved, after one "

@@ -36,7 +36,7 @@ class LatencyPlan:
 
 
 FULL = LatencyPlan(samples=300)
-QUICK = LatencyPlan(samples=60)
+QUICK = LatencyPlan(samples=40, warmup=3)
 
 
 def percentile(values: list[float], share: float) -> float:

@@ -23,6 +23,7 @@ from service.simulation import preset, simulate
 
 NAME = "throughput"
 WORKER_COUNTS = (1, 2)
+QUICK_WORKER_COUNTS = (1,)  # each server start and warm-up costs seconds; --quick has two minutes
 WAIT_SECONDS = 300
 
 
@@ -71,8 +72,8 @@ def measure_throughput(database_url: str | None, workers: int, plan: ThroughputP
 
 
 def backends(quick: bool) -> list[str]:
-    """SQLite, and PostgreSQL when a server answers (not in quick mode: each server start
-    costs seconds)."""
+    """SQLite, and PostgreSQL when a server answers (not in quick mode, which also runs one
+    worker count only: each server start costs seconds)."""
     return ["sqlite", "postgresql"] if postgres_answers() and not quick else ["sqlite"]
 
 
@@ -85,7 +86,7 @@ def run(quick: bool) -> Section:
     )
     rates: dict[str, dict[int, list[float]]] = {}
     for backend in backends(quick):
-        for workers in WORKER_COUNTS:
+        for workers in QUICK_WORKER_COUNTS if quick else WORKER_COUNTS:
             if backend == "sqlite":
                 runs = measure_throughput(None, workers, plan)
             else:

@@ -61,6 +61,8 @@ def ring(database_url: str, channel: str, message: bytes = b"") -> None:
     if directory is None:
         return
     try:
+        if not _ours(directory):
+            return
         names = os.listdir(directory)
     except OSError:  # nobody has listened yet
         return
@@ -80,6 +82,13 @@ def ring(database_url: str, channel: str, message: bytes = b"") -> None:
                 continue
 
 
+def _ours(directory: Path) -> bool:
+    """Whether the channel directory is this user's and private: a directory another local user
+    made first must neither hear our job ids nor take our sockets."""
+    status = directory.stat()
+    return status.st_uid == os.getuid() and status.st_mode & 0o077 == 0
+
+
 class Listener:
     """One process's socket on a channel; `wait` returns what rang it, or [] on a timeout."""
 
@@ -92,6 +101,8 @@ class Listener:
         try:
             for attempt in range(2):
                 directory.mkdir(parents=True, exist_ok=True, mode=0o700)
+                if not _ours(directory):
+                    raise PermissionError(f"{directory} belongs to another user")
                 try:
                     self._socket.bind(str(self.path))
                     break

@@ -116,3 +116,16 @@ def test_finished_jobs_wake_the_requests_waiting_for_them(database_url):
             finished.close()
 
     assert asyncio.run(wait_for_the_ring()) is False, "only the finished job's waiter wakes"
+
+
+def test_a_channel_directory_others_may_write_is_not_used(database_url):
+    directory = doorbell.channel_directory(database_url, doorbell.QUEUED)
+    listener = doorbell.listen(database_url, doorbell.QUEUED)
+    try:
+        directory.chmod(0o777)  # as if another local user had made it first
+        doorbell.ring(database_url, doorbell.QUEUED)
+        assert listener.wait(0.05) == [], "no job news is sent into a directory others share"
+        assert doorbell.listen(database_url, doorbell.QUEUED) is None
+    finally:
+        directory.chmod(0o700)
+        listener.close()
