@@ -12,7 +12,7 @@ import pytest
 from benchmarks import datasets
 from benchmarks.live_service import checked, create_deployment, live_service
 from benchmarks.report import Section
-from benchmarks.sections import SECTIONS, ingest, latency, overhead, throughput
+from benchmarks.sections import ingest, latency, overhead, throughput
 from service.simulation import preset, simulate
 
 
@@ -20,11 +20,6 @@ from service.simulation import preset, simulate
 def private_cache(tmp_path, monkeypatch):
     """Simulated data sets go to a temporary cache, not the real one."""
     monkeypatch.setattr(datasets, "CACHE", tmp_path / "cache")
-
-
-def test_the_service_sections_are_registered_in_running_order():
-    names = list(SECTIONS)
-    assert names[-4:] == ["ingest", "latency", "throughput", "overhead"]
 
 
 @pytest.mark.parametrize("kind", ["json", "csv"])
