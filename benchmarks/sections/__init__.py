@@ -5,11 +5,15 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from benchmarks.report import Section
-from benchmarks.sections import associators, peer
+from benchmarks.sections import associators, ingest, latency, overhead, peer, throughput
 
 SectionRunner = Callable[[bool], Section]
 
 SECTIONS: dict[str, SectionRunner] = {
     associators.NAME: associators.run,
     peer.NAME: peer.run,
+    ingest.NAME: ingest.run,
+    latency.NAME: latency.run,
+    throughput.NAME: throughput.run,
+    overhead.NAME: overhead.run,
 }

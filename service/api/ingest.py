@@ -59,6 +59,29 @@ def parse_json_batch(
             "the batch has no detections",
             errors=[ProblemItem(field="detections", pointer="/detections", message="is empty")],
         )
+    columns = {name: [row.get(name) for row in rows] for name in DETECTION_FIELDS}
+    if not _well_formed(rows, columns):
+        items = _shape_problems(rows)
+        if items:
+            raise ApiProblem(422, _count(items), errors=items)
+    with_sensors = _fill_declared_sensors(columns, sensors, json_body=True)
+    return validate_columns(with_sensors, "/detections"), envelope.associate
+
+
+def _well_formed(rows: list[dict[str, Any]], columns: dict[str, list[Any]]) -> bool:
+    """True when no row has an unknown field, lacks a required one or has a text field that is
+    not text: the common case, checked column by column at C speed (the row-by-row check
+    that names each problem runs only when this is false)."""
+    known = frozenset(DETECTION_FIELDS)
+    return (
+        all(map(known.issuperset, rows))
+        and not any(None in columns[name] for name in REQUIRED_FIELDS)
+        and all(set(map(type, columns[name])) <= {str, type(None)} for name in DETECTION_FIELDS[3:])
+    )
+
+
+def _shape_problems(rows: list[dict[str, Any]]) -> list[ProblemItem]:
+    """The problems (the first hundred) of rows that are not well formed, each named."""
     items: list[ProblemItem] = []
     for i, row in enumerate(rows):
         for name in row.keys() - DETECTION_FIELDS:
@@ -72,11 +95,7 @@ def parse_json_batch(
                 items.append(_row_item(i, name, f"must be a string, got {value!r}"))
         if len(items) >= 100:
             break
-    if items:
-        raise ApiProblem(422, _count(items), errors=items)
-    columns = {name: [row.get(name) for row in rows] for name in DETECTION_FIELDS}
-    with_sensors = _fill_declared_sensors(columns, sensors, json_body=True)
-    return validate_columns(with_sensors, "/detections"), envelope.associate
+    return items
 
 
 def parse_csv_batch(body: bytes, sensors: list[dict[str, Any]] | None) -> Detections:

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import itertools
 import uuid
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import orjson
-from sqlalchemy import func, insert, select
+from sqlalchemy import func, select, type_coerce
 from sqlalchemy.orm import Session
+from sqlalchemy.types import NullType
 
 from service.association.detections import Detections
 from service.association.result import AssociationResult, result_from_dict
@@ -17,6 +19,18 @@ from service.db.models import Batch, Deployment, Detection, Job, JobResult, JobS
 
 # Rows per INSERT executemany call: bounds the memory of one statement's parameters.
 INSERT_CHUNK = 5_000
+# The detection columns a batch insert writes (the key is the database's), in this order.
+DETECTION_INSERT_COLUMNS = (
+    "batch_id",
+    "deployment_id",
+    "row",
+    "position",
+    "velocity",
+    "timestamp",
+    "sensor_id",
+    "detection_id",
+    "target",
+)
 
 
 def create_deployment(
@@ -87,32 +101,36 @@ def insert_batch(
     )
     session.add(batch)
     session.flush()
-    columns = zip(
-        d.position.tolist(),
-        d.velocity.tolist(),
-        d.timestamp.tolist(),
-        d.sensor_id.tolist(),
-        d.detection_id.tolist(),
-        d.target.tolist(),
-        strict=True,
+    connection = session.connection()
+    dialect = connection.dialect
+    table = Detection.__table__
+    # The ids are bound once here, as the column type binds them (32 hex digits on SQLite, a
+    # native uuid on PostgreSQL), and the rows go to the driver's executemany as plain tuples:
+    # the ORM's bulk insert spent more than the database did, building and binding a dict per row.
+    bind_id = table.c.batch_id.type.bind_processor(dialect) or (lambda value: value)
+    batch_key, deployment_key = bind_id(batch.id), bind_id(deployment_id)
+    rows = list(
+        zip(
+            itertools.repeat(batch_key),
+            itertools.repeat(deployment_key),
+            range(1, len(d) + 1),
+            d.position.tolist(),
+            d.velocity.tolist(),
+            d.timestamp.tolist(),
+            d.sensor_id.tolist(),
+            d.detection_id.tolist(),
+            d.target.tolist(),
+            strict=False,  # the repeats are endless; the row numbers set the length
+        )
     )
-    rows = [
-        {
-            "batch_id": batch.id,
-            "deployment_id": deployment_id,
-            "row": i,
-            "position": p,
-            "velocity": v,
-            "timestamp": t,
-            "sensor_id": s,
-            "detection_id": did,
-            "target": target,
-        }
-        for i, (p, v, t, s, did, target) in enumerate(columns, start=1)
-    ]
-    statement = insert(Detection)
+    placeholder = "?" if dialect.paramstyle == "qmark" else "%s"
+    names = ", ".join(dialect.identifier_preparer.quote(c) for c in DETECTION_INSERT_COLUMNS)
+    statement = (
+        f"INSERT INTO {dialect.identifier_preparer.format_table(table)} ({names}) "
+        f"VALUES ({', '.join([placeholder] * len(DETECTION_INSERT_COLUMNS))})"
+    )
     for start in range(0, len(rows), INSERT_CHUNK):
-        session.execute(statement, rows[start : start + INSERT_CHUNK])
+        connection.exec_driver_sql(statement, rows[start : start + INSERT_CHUNK])
     return batch
 
 
@@ -144,24 +162,28 @@ def load_detections(
             Detection.sensor_id,
             Detection.detection_id,
             Detection.target,
-            Detection.batch_id,
+            # The batch id as the driver returns it: converting it to a UUID on every row cost
+            # more than reading the rows. The few distinct values are converted below.
+            type_coerce(Detection.batch_id, NullType()),
         )
         .join(Batch, Batch.id == Detection.batch_id)
         .where(_selects(deployment_id, selection))
         .order_by(Batch.created_at, Batch.id, Detection.row)
     )
-    rows = list(session.execute(query).all())
+    # Core rows (not ORM-loaded ones): the columns need no conversion but the batch id's.
+    rows = list(session.connection().execute(query).all())
+    batch_key = {key: str(uuid.UUID(str(key))) for key in {r[6] for r in rows}}
     batch_ids = selection.get("batch_ids")
     if batch_ids:  # the order the caller listed them in
         rank = {str(b): k for k, b in enumerate(batch_ids)}
-        rows.sort(key=lambda r: rank[str(r[6])])  # stable: keeps the row order within a batch
+        rows.sort(key=lambda r: rank[batch_key[r[6]]])  # stable: keeps the row order in a batch
     n = len(rows)
     columns = list(zip(*rows, strict=True)) if rows else [()] * 7
     detection_ids = np.array(columns[4], dtype=object).reshape(n)
-    batch_of = np.array([str(b) for b in columns[6]], dtype=object).reshape(n)
-    if n and np.unique(batch_of).size > 1 and np.unique(detection_ids.astype(str)).size < n:
+    if len(batch_key) > 1 and np.unique(detection_ids.astype(str)).size < n:
         detection_ids = np.array(
-            [f"{b}:{d}" for b, d in zip(batch_of, detection_ids, strict=True)], dtype=object
+            [f"{batch_key[b]}:{d}" for b, d in zip(columns[6], detection_ids, strict=True)],
+            dtype=object,
         )
     return Detections(
         position=np.array(columns[0], dtype=np.float64).reshape(n),

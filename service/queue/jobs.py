@@ -11,7 +11,8 @@ drift apart; this host's clock on SQLite, which is embedded and so shared by pro
 Notifications: on PostgreSQL a NOTIFY on `NOTIFY_CHANNEL` (a job is runnable) or
 `FINISHED_CHANNEL` (a job finished) is sent in the transaction that makes it true, so it is
 delivered at commit and never on rollback. On SQLite the same news reaches the threads of this
-process through in-process signals fired after the commit.
+process through in-process signals fired after the commit, and the other processes on the
+database file through its doorbell (`service.queue.doorbell`), rung after the commit.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from sqlalchemy.orm import Session
 
 from service.association.result import AssociationResult
 from service.db.models import Job, JobResult, JobState, utcnow
+from service.queue import doorbell
 
 NOTIFY_CHANNEL = "roadlink_jobs"
 """PostgreSQL channel a NOTIFY is sent on, in the enqueueing transaction, for every new job."""
@@ -38,7 +40,7 @@ FINISHED_CHANNEL = "roadlink_jobs_finished"
 (succeeded, failed or cancelled): `?wait=` result requests listen on it."""
 
 # On SQLite there is no NOTIFY: a worker thread in the process that enqueued is woken through
-# this event; workers in other processes fall back to polling.
+# this event; workers in other processes by the doorbell, or else by polling.
 local_enqueue_signal = threading.Event()
 
 # Callbacks given the ids of jobs that finished in this process (SQLite), after the commit.
@@ -96,7 +98,13 @@ def _announce_runnable(session: Session, job_id: uuid.UUID | None) -> None:
             {"channel": NOTIFY_CHANNEL, "id": "" if job_id is None else str(job_id)},
         )
     else:
-        _after_commit(session, local_enqueue_signal.set)
+        database_url = _database_url(session)
+
+        def wake_workers() -> None:
+            local_enqueue_signal.set()
+            doorbell.ring(database_url, doorbell.QUEUED)
+
+        _after_commit(session, wake_workers)
 
 
 def _announce_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> None:
@@ -118,8 +126,14 @@ def _announce_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> None:
             subscribers = list(_local_finish_subscribers)
         for callback in subscribers:
             callback(ids)
+        doorbell.ring(database_url, doorbell.FINISHED, "\n".join(ids).encode())
 
+    database_url = _database_url(session)
     _after_commit(session, tell_subscribers)
+
+
+def _database_url(session: Session) -> str:
+    return session.get_bind().engine.url.render_as_string(hide_password=False)
 
 
 @dataclass(frozen=True)

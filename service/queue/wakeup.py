@@ -1,5 +1,6 @@
 """How an idle worker learns that a job was enqueued, and how a result request learns that its
-job finished: PostgreSQL LISTEN, in-process signals, or polling."""
+job finished: PostgreSQL LISTEN, SQLite's doorbell (`service.queue.doorbell`), in-process
+signals, or polling."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from typing import Any, Protocol
 
 from sqlalchemy import make_url
 
+from service.queue import doorbell
 from service.queue.jobs import (
     FINISHED_CHANNEL,
     NOTIFY_CHANNEL,
@@ -32,14 +34,30 @@ class Wakeup(Protocol):
 
 
 class PollingWakeup:
-    """SQLite: woken at once by an enqueue in this process, else after the poll interval."""
+    """SQLite: woken at once by an enqueue in this process or, through the database file's
+    doorbell, in another process; else after the poll interval."""
+
+    def __init__(self, database_url: str = "") -> None:
+        self._doorbell = doorbell.listen(database_url, doorbell.QUEUED) if database_url else None
 
     def wait(self, timeout: float) -> None:
-        if local_enqueue_signal.wait(timeout):
+        if self._doorbell is None:
+            if local_enqueue_signal.wait(timeout):
+                local_enqueue_signal.clear()
+            return
+        # An enqueue in this process rings the doorbell too; the event covers one that
+        # happened before this wait began.
+        if local_enqueue_signal.is_set():
+            local_enqueue_signal.clear()
+            self._doorbell.drain()
+            return
+        if self._doorbell.wait(timeout):
             local_enqueue_signal.clear()
 
     def close(self) -> None:
-        return None
+        if self._doorbell is not None:
+            self._doorbell.close()
+            self._doorbell = None
 
 
 class PostgresWakeup:
@@ -82,7 +100,7 @@ def make_wakeup(database_url: str) -> Wakeup:
     """The wake-up suited to the database."""
     if database_url.startswith("postgresql"):
         return PostgresWakeup(database_url)
-    return PollingWakeup()
+    return PollingWakeup(database_url)
 
 
 def libpq_conninfo(database_url: str) -> str:
@@ -96,20 +114,23 @@ class FinishedJobs:
 
     On PostgreSQL one thread per API process LISTENs on the finished-jobs channel (the NOTIFY is
     sent in the finishing transaction) and wakes the requests waiting for that job. On SQLite it
-    hears of jobs finished by workers in this process; workers in other processes cannot tell
-    it, so requests poll as well (`listening` says whether notifications can be relied on).
+    hears of jobs finished by workers in this process, and of those finished in other processes
+    through the database file's doorbell (a thread reads it); a ring may be lost, so requests
+    poll as well (`listening` says whether notifications can be relied on).
     """
 
     RECONNECT_SECONDS = 1.0
 
     def __init__(self, database_url: str) -> None:
         self._postgres = database_url.startswith("postgresql")
+        self._database_url = database_url
         self._conninfo = libpq_conninfo(database_url) if self._postgres else ""
         self._waiters: dict[str, set[tuple[asyncio.AbstractEventLoop, asyncio.Event]]] = {}
         self._lock = threading.Lock()
         self._closing = threading.Event()
         self._connected = threading.Event()
         self._thread: threading.Thread | None = None
+        self._doorbell: doorbell.Listener | None = None
         if not self._postgres:
             subscribe_local_finishes(self._wake)
 
@@ -119,12 +140,24 @@ class FinishedJobs:
         return self._connected.is_set()
 
     def start(self) -> None:
-        """Start listening (PostgreSQL; nothing to start on SQLite)."""
-        if self._postgres and self._thread is None:
+        """Start listening: on PostgreSQL's channel, or on the SQLite file's doorbell."""
+        if self._thread is not None:
+            return
+        if self._postgres:
             self._thread = threading.Thread(
                 target=self._listen, name="roadlink-finished-jobs", daemon=True
             )
-            self._thread.start()
+        else:
+            self._doorbell = doorbell.listen(self._database_url, doorbell.FINISHED)
+            if self._doorbell is None:
+                return
+            self._thread = threading.Thread(
+                target=self._hear_doorbell,
+                args=(self._doorbell,),
+                name="roadlink-finished-jobs",
+                daemon=True,
+            )
+        self._thread.start()
 
     def close(self) -> None:
         """Stop listening and forget every waiter."""
@@ -132,6 +165,9 @@ class FinishedJobs:
         if self._thread is not None:
             self._thread.join(5.0)
             self._thread = None
+        if self._doorbell is not None:
+            self._doorbell.close()
+            self._doorbell = None
         if not self._postgres:
             unsubscribe_local_finishes(self._wake)
 
@@ -160,6 +196,14 @@ class FinishedJobs:
         for loop, event in woken:
             with contextlib.suppress(RuntimeError):  # that request's loop has closed
                 loop.call_soon_threadsafe(event.set)
+
+    def _hear_doorbell(self, listener: doorbell.Listener) -> None:
+        while not self._closing.is_set():
+            # The timeout only bounds how long close() waits for this thread.
+            messages = listener.wait(0.5)
+            job_ids = [j for m in messages for j in m.decode(errors="replace").split("\n") if j]
+            if job_ids:
+                self._wake(job_ids)
 
     def _listen(self) -> None:
         import psycopg  # only needed on PostgreSQL

@@ -143,7 +143,7 @@ def test_the_runner_prints_markdown_and_writes_the_json_document(tmp_path, monke
 
 
 def test_every_section_is_registered_under_its_name():
-    assert list(SECTIONS) == ["associators", "peer"]
+    assert list(SECTIONS) == ["associators", "peer", "ingest", "latency", "throughput", "overhead"]
 
 
 @pytest.mark.slow

@@ -1,0 +1,157 @@
+"""Wake-ups between the processes that share one SQLite file: SQLite's LISTEN/NOTIFY.
+
+SQLite is embedded, so every process using a database file runs on one host. Each listening
+process binds a Unix datagram socket in a directory named after the database file (one
+directory per channel: jobs queued, jobs finished); a ring sends a datagram to every socket
+there. A ring is a hint, never data: the listener re-reads the database, and keeps polling as
+before, so a lost ring (a full socket buffer, a directory it may not write) only costs the poll
+interval it would have waited anyway. A socket left behind by a process that died is removed by
+the next ring that finds nobody listening on it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import logging
+import os
+import select
+import socket
+import tempfile
+import uuid
+from pathlib import Path
+
+from sqlalchemy import make_url
+
+log = logging.getLogger(__name__)
+
+QUEUED = "queued"
+"""Channel rung after a job becomes runnable (its enqueue committed)."""
+
+FINISHED = "finished"
+"""Channel rung, with the job ids, after jobs finished (their transition committed)."""
+
+MAX_DATAGRAM_BYTES = 60_000
+
+
+def sqlite_file(database_url: str) -> Path | None:
+    """The database file of a SQLite URL (resolved, so that every process names it alike);
+    None for in-memory databases and other backends."""
+    url = make_url(database_url)
+    if url.get_backend_name() != "sqlite" or url.database in (None, "", ":memory:"):
+        return None
+    if url.database.startswith("file:"):  # URI filenames: no stable path to key on
+        return None
+    return Path(url.database).resolve()
+
+
+def channel_directory(database_url: str, channel: str) -> Path | None:
+    """Where the listeners of `channel` for this database bind their sockets (None: no
+    doorbell for this database). Kept short: a socket path has at most 107 bytes."""
+    path = sqlite_file(database_url)
+    if path is None:
+        return None
+    digest = hashlib.sha256(str(path).encode()).hexdigest()[:16]
+    return Path(tempfile.gettempdir()) / f"roadlink-{digest}" / channel
+
+
+def ring(database_url: str, channel: str, message: bytes = b"") -> None:
+    """Wake every process listening on `channel` of this database (best effort, never raises)."""
+    directory = channel_directory(database_url, channel)
+    if directory is None:
+        return
+    try:
+        if not _ours(directory):
+            return
+        names = os.listdir(directory)
+    except OSError:  # nobody has listened yet
+        return
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sender:
+        sender.setblocking(False)
+        for name in names:
+            if not name.endswith(".sock"):
+                continue
+            path = directory / name
+            try:
+                sender.sendto(message[:MAX_DATAGRAM_BYTES], str(path))
+            except (ConnectionRefusedError, FileNotFoundError):
+                # Its process is gone: nobody will read this socket again.
+                with contextlib.suppress(OSError):
+                    path.unlink()
+            except OSError:  # its buffer is full (it is awake anyway), or not ours to write
+                continue
+
+
+def _ours(directory: Path) -> bool:
+    """Whether the channel directory is this user's and private: a directory another local user
+    made first must neither hear our job ids nor take our sockets."""
+    status = directory.stat()
+    return status.st_uid == os.getuid() and status.st_mode & 0o077 == 0
+
+
+class Listener:
+    """One process's socket on a channel; `wait` returns what rang it, or [] on a timeout."""
+
+    def __init__(self, database_url: str, channel: str) -> None:
+        directory = channel_directory(database_url, channel)
+        if directory is None:
+            raise ValueError(f"no doorbell for {database_url!r}: not a SQLite file")
+        self.path = directory / f"{os.getpid()}-{uuid.uuid4().hex[:8]}.sock"
+        self._socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            for attempt in range(2):
+                directory.mkdir(parents=True, exist_ok=True, mode=0o700)
+                if not _ours(directory):
+                    raise PermissionError(f"{directory} belongs to another user")
+                try:
+                    self._socket.bind(str(self.path))
+                    break
+                except FileNotFoundError:  # the last listener removed the directory meanwhile
+                    if attempt:
+                        raise
+        except OSError:
+            self._socket.close()
+            raise
+        self._socket.setblocking(False)
+
+    def fileno(self) -> int:
+        """The socket's descriptor (for select)."""
+        return self._socket.fileno()
+
+    def wait(self, timeout: float) -> list[bytes]:
+        """Block until rung or `timeout` seconds pass; every message that was waiting."""
+        readable, _, _ = select.select([self._socket], [], [], max(timeout, 0.0))
+        return self.drain() if readable else []
+
+    def drain(self) -> list[bytes]:
+        """The messages waiting now, without blocking."""
+        messages = []
+        while True:
+            try:
+                messages.append(self._socket.recv(MAX_DATAGRAM_BYTES))
+            except (BlockingIOError, InterruptedError):
+                return messages
+            except OSError:  # closed meanwhile
+                return messages
+
+    def close(self) -> None:
+        """Stop listening and remove the socket, and its directories once they are empty (so
+        that temporary databases leave nothing behind)."""
+        self._socket.close()
+        with contextlib.suppress(OSError):
+            self.path.unlink()
+        with contextlib.suppress(OSError):  # another listener's socket is still there
+            self.path.parent.rmdir()
+            self.path.parent.parent.rmdir()
+
+
+def listen(database_url: str, channel: str) -> Listener | None:
+    """A listener on `channel`, or None when this database has no doorbell or the socket cannot
+    be made (the caller then polls, as it always may)."""
+    if channel_directory(database_url, channel) is None:
+        return None
+    try:
+        return Listener(database_url, channel)
+    except OSError as exc:
+        log.warning("cannot listen for %s jobs (%s); polling only", channel, exc)
+        return None
