@@ -51,6 +51,9 @@ PRIOR_SAMPLE = 400
 # A pile-up of pairs away from the kinematic prediction is believed only when it holds this many
 # standard deviations (Poisson) more pairs than the kinematic prediction's own bin.
 PRIOR_SIGNIFICANCE = 5.0
+# Fewer sampled detections than this cannot reach that significance (a handful of targets): their
+# mode is taken as it is, as long as it stands above the background at all.
+PRIOR_TEST_SAMPLE = 40
 TIME_HUBER = 3.0
 MATCH_BATCH = 2000  # edges per sparse assignment: small enough to stay linear, few enough calls
 PAIR_FIELDS = (
@@ -356,7 +359,10 @@ def _travel_time_mode(s: Sensors, a: IntArray, q: int) -> float:
     # background is rough (arrivals bunch in queues, speeds mix, platoons repeat at one
     # headway), so a bump that is merely above it is no evidence of a bias.
     lead = smooth[best] - smooth[kinematic]
-    if lead < PRIOR_SIGNIFICANCE * np.sqrt(variance[best] + variance[kinematic]):
+    if smooth[best] <= 0 or (
+        a.size >= PRIOR_TEST_SAMPLE
+        and lead < PRIOR_SIGNIFICANCE * np.sqrt(variance[best] + variance[kinematic])
+    ):
         return 0.0
     peak = 0.5 * (bins[best] + bins[best + 1])
     near = values[np.abs(values - peak) <= 2 * PRIOR_BIN]
