@@ -48,6 +48,12 @@ REFINE_GATE_FACTOR = 2.0
 PRIOR_LOG_RANGE = float(np.log(10.0))
 PRIOR_BIN = 0.05
 PRIOR_SAMPLE = 400
+# A pile-up of pairs away from the kinematic prediction is believed only when it holds this many
+# standard deviations (Poisson) more pairs than the kinematic prediction's own bin.
+PRIOR_SIGNIFICANCE = 5.0
+# Fewer sampled detections than this cannot reach that significance (a handful of targets): their
+# mode is taken as it is, as long as it stands above the background at all.
+PRIOR_TEST_SAMPLE = 40
 TIME_HUBER = 3.0
 MATCH_BATCH = 2000  # edges per sparse assignment: small enough to stay linear, few enough calls
 PAIR_FIELDS = (
@@ -344,11 +350,21 @@ def _travel_time_mode(s: Sensors, a: IntArray, q: int) -> float:
     span_of_time = float(times[-1] - times[0])
     rate = (members.size - 1) / span_of_time if span_of_time > 0 else 0.0
     typical = dx * 0.5 * (1.0 / s.speed[a] + 1.0 / float(np.median(s.speed[members])))
-    histogram -= rate * float(typical.sum()) * np.diff(np.exp(bins))
-    smooth = np.convolve(histogram, [1.0, 2.0, 1.0], mode="same")
-    if smooth.max() <= 0:
-        return 0.0  # no pile-up above chance: keep the kinematic model
-    peak = 0.5 * (bins[np.argmax(smooth)] + bins[np.argmax(smooth) + 1])
+    background = rate * float(typical.sum()) * np.diff(np.exp(bins))
+    smooth = np.convolve(histogram - background, [1.0, 2.0, 1.0], mode="same")
+    variance = np.convolve(histogram, [1.0, 4.0, 1.0], mode="same") + 1.0  # Poisson counts
+    best = int(np.argmax(smooth))
+    kinematic = int(np.searchsorted(bins, 0.0) - 1)
+    # The kinematic prediction stands unless another bias explains clearly more pairs: that
+    # background is rough (arrivals bunch in queues, speeds mix, platoons repeat at one
+    # headway), so a bump that is merely above it is no evidence of a bias.
+    lead = smooth[best] - smooth[kinematic]
+    if smooth[best] <= 0 or (
+        a.size >= PRIOR_TEST_SAMPLE
+        and lead < PRIOR_SIGNIFICANCE * np.sqrt(variance[best] + variance[kinematic])
+    ):
+        return 0.0
+    peak = 0.5 * (bins[best] + bins[best + 1])
     near = values[np.abs(values - peak) <= 2 * PRIOR_BIN]
     return float(np.median(near)) if near.size else float(peak)
 
