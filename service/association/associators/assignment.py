@@ -33,6 +33,7 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 from pydantic import Field
+from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components, min_weight_full_bipartite_matching
 
@@ -56,6 +57,7 @@ PRIOR_SIGNIFICANCE = 5.0
 PRIOR_TEST_SAMPLE = 40
 TIME_HUBER = 3.0
 MATCH_BATCH = 2000  # edges per sparse assignment: small enough to stay linear, few enough calls
+DENSE_MATCH_NODES = 120  # below this many nodes one dense assignment beats sparse bookkeeping
 PAIR_FIELDS = (
     "a",
     "b",
@@ -549,6 +551,9 @@ def match(
     lu, li = np.unique(left, return_inverse=True)
     ru, ri = np.unique(right, return_inverse=True)
     n_l, n_r = lu.size, ru.size
+    if n_l + n_r <= DENSE_MATCH_NODES:
+        ml, mr = _match_dense(li, ri, cost, gate / 2.0, n_l, n_r)
+        return lu[ml], ru[mr]
     graph = coo_matrix((np.ones(li.size), (li, n_l + ri)), shape=(n_l + n_r, n_l + n_r))
     n_parts, part = connected_components(graph, directed=False)
     edge_part = part[li]
@@ -571,6 +576,26 @@ def match(
             taken_l.append(bl)
             taken_r.append(br)
     return lu[np.concatenate(taken_l)], ru[np.concatenate(taken_r)]
+
+
+def _match_dense(
+    li: IntArray, ri: IntArray, cost: FloatArray, alone: float, n_l: int, n_r: int
+) -> tuple[IntArray, IntArray]:
+    """The same matching as `_match_block`, as one dense square assignment, for small problems
+    (a paper-sized batch): building sparse graphs and their components costs far more there.
+
+    Rows are the lefts, then one dummy per right; columns the rights, then one dummy per left. A
+    left may take a real right along an edge or its own dummy (cost `alone`); dummies pair freely
+    at no cost, which always leaves exactly as many free dummy rows as free dummy columns.
+    """
+    square = np.full((n_l + n_r, n_r + n_l), np.inf)
+    square[li, ri] = cost
+    square[np.arange(n_l), n_r + np.arange(n_l)] = alone
+    square[n_l + np.arange(n_r), np.arange(n_r)] = alone
+    square[n_l:, n_r:] = 0.0
+    row, col = linear_sum_assignment(square)
+    real = (row < n_l) & (col < n_r)
+    return row[real], col[real]
 
 
 def _match_block(
