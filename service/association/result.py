@@ -43,17 +43,17 @@ class AssociationResult:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON contract of design.md."""
-        d = self.detections
+        rows = _detection_rows(self.detections)
         return {
             "associator": self.associator,
             "params": self.params,
-            "n_detections": len(d),
+            "n_detections": len(self.detections),
             "n_targets": self.n_targets,
             "targets": [
-                {"target": f"T{k + 1}", "detections": [_detection(d, int(i)) for i in members]}
+                {"target": f"T{k + 1}", "detections": [rows[i] for i in members.tolist()]}
                 for k, members in enumerate(self.target_members())
             ],
-            "unassigned": [_detection(d, int(i)) for i in np.flatnonzero(self.groups < 0)],
+            "unassigned": [rows[i] for i in np.flatnonzero(self.groups < 0).tolist()],
             "metrics": None if self.metrics is None else self.metrics.to_dict(),
         }
 
@@ -65,6 +65,11 @@ class AssociationResult:
         d = self.detections
         sensors = _sensors_in_road_order(d)
         column = {sid: k for k, sid in enumerate(sensors)}
+        # Python values once, not a numpy scalar conversion per cell.
+        sensor_of = [column[sid] for sid in d.sensor_id.tolist()]
+        ids = [str(i) for i in d.detection_id.tolist()]
+        velocities = [repr(v) for v in d.velocity.tolist()]
+        timestamps = [repr(t) for t in d.timestamp.tolist()]
         out = io.StringIO()
         writer = csv.writer(out, lineterminator="\n")
         writer.writerow(
@@ -77,11 +82,11 @@ class AssociationResult:
         )
         for k, members in enumerate(self.target_members()):
             cells: list[list[list[str]]] = [[[], [], []] for _ in sensors]
-            for i in members:
-                cell = cells[column[d.sensor_id[i]]]
-                cell[0].append(str(d.detection_id[i]))
-                cell[1].append(repr(float(d.velocity[i])))
-                cell[2].append(repr(float(d.timestamp[i])))
+            for i in members.tolist():
+                cell = cells[sensor_of[i]]
+                cell[0].append(ids[i])
+                cell[1].append(velocities[i])
+                cell[2].append(timestamps[i])
             writer.writerow([f"T{k + 1}"] + [";".join(v) for cell in cells for v in cell])
         return out.getvalue()
 
@@ -165,11 +170,22 @@ def _sensors_in_road_order(d: Detections) -> list[str]:
     return list(dict.fromkeys(d.sensor_id[order].tolist()))
 
 
-def _detection(d: Detections, i: int) -> dict[str, Any]:
-    return {
-        "detection_id": d.detection_id[i],
-        "sensor_id": d.sensor_id[i],
-        "position": float(d.position[i]),
-        "velocity": float(d.velocity[i]),
-        "timestamp": float(d.timestamp[i]),
-    }
+def _detection_rows(d: Detections) -> list[dict[str, Any]]:
+    """Every detection as its result-JSON object, in input order."""
+    return [
+        {
+            "detection_id": detection_id,
+            "sensor_id": sensor_id,
+            "position": position,
+            "velocity": velocity,
+            "timestamp": timestamp,
+        }
+        for detection_id, sensor_id, position, velocity, timestamp in zip(
+            d.detection_id.tolist(),
+            d.sensor_id.tolist(),
+            d.position.tolist(),
+            d.velocity.tolist(),
+            d.timestamp.tolist(),
+            strict=True,
+        )
+    ]
