@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from service.association import AssociationResult, DetectionError, associate
+from service.association import AssociationResult, DetectionError, Detections, associate
 from service.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR, AssociationError
 from service.association.csvio import read_detections_csv, write_detections_csv
 from service.cli import app
@@ -92,7 +92,11 @@ def simulate_command(
         config = preset(preset_name, **overrides)
     except ValueError as exc:
         raise fail(str(exc)) from None
-    detections = simulate(config, seed=seed).detections
+    write_simulated(simulate(config, seed=seed).detections, output, unlabelled=unlabelled)
+
+
+def write_simulated(detections: Detections, output: Path, *, unlabelled: bool) -> None:
+    """Write simulated detections as CSV to a file or, for '-', to stdout."""
     if unlabelled:
         detections = detections.without_labels()
     text = write_detections_csv(detections)

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from service.association.csvio import write_detections_csv
 from service.cli import app
-from service.cli.analysis import fail
+from service.cli.analysis import fail, write_simulated
 from service.simulation.sumo import (
     SUMO_SCENARIOS,
     SumoNotInstalledError,
@@ -56,11 +54,4 @@ def simulate_sumo_command(
         detections = run_sumo(config, seed=seed, workdir=workdir)
     except (SumoNotInstalledError, SumoRunError) as exc:
         raise fail(str(exc)) from None
-    if unlabelled:
-        detections = detections.without_labels()
-    text = write_detections_csv(detections)
-    if str(output) == "-":
-        sys.stdout.write(text)
-    else:
-        output.write_text(text)
-        typer.echo(f"wrote {len(detections)} detections to {output}", err=True)
+    write_simulated(detections, output, unlabelled=unlabelled)
