@@ -5,12 +5,8 @@ directory and copied to artifacts/job-page.png for a person to look at."""
 
 from __future__ import annotations
 
-import os
 import shutil
-import signal
 import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from html.parser import HTMLParser
 from pathlib import Path
@@ -20,7 +16,7 @@ import pytest
 
 from service.association.csvio import write_detections_csv
 from service.simulation import preset, simulate
-from tests.security.conftest import free_port
+from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 
 pytestmark = pytest.mark.slow
 
@@ -45,51 +41,13 @@ CHROMIUM_FLAGS = (
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
     """`roadlink serve --workers 1` on a fresh SQLite file; its URL and an admin key."""
     directory = tmp_path_factory.mktemp("page")
-    env = {
-        **os.environ,
-        "ROADLINK_DATABASE_URL": f"sqlite:///{directory / 'roadlink.db'}",
-        "ROADLINK_POLL_SECONDS": "0.05",
-        "ROADLINK_LOG_LEVEL": "warning",
-    }
-    created = subprocess.run(
-        [sys.executable, "-m", "service.cli", "keys", "create", "--scope", "admin"],
-        cwd=directory,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert created.returncode == 0, created.stderr
-    port = free_port()
-    log_path = directory / "serve.log"
-    with log_path.open("w") as log:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", "1"],
-            cwd=directory,
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-        )
-        url = f"http://127.0.0.1:{port}"
-        try:
-            deadline = time.monotonic() + 60
-            while True:
-                assert process.poll() is None, log_path.read_text()
-                try:
-                    if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
-                        break
-                except httpx.TransportError:
-                    pass
-                assert time.monotonic() < deadline, "the server did not become ready"
-                time.sleep(0.1)
-            yield url, created.stdout.strip()
-        finally:
-            process.send_signal(signal.SIGINT)
-            try:
-                process.wait(20)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+    live = LiveServer(directory, sqlite_env(directory), free_port())
+    key = roadlink("keys", "create", "--scope", "admin", env=live.env, cwd=directory).strip()
+    live.start(workers=1)
+    try:
+        yield live.url, key
+    finally:
+        live.stop()
 
 
 def _chromium(profile: Path, *args: str) -> subprocess.CompletedProcess[str]:

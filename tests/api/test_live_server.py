@@ -6,12 +6,8 @@ from __future__ import annotations
 
 import importlib
 import json
-import os
-import signal
-import socket
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import NamedTuple
@@ -22,6 +18,7 @@ import pytest
 from service.association import associate
 from service.association.csvio import read_detections_csv, write_detections_csv
 from service.simulation import preset, simulate
+from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 
 pytestmark = pytest.mark.slow
 
@@ -29,13 +26,7 @@ REPO = Path(__file__).resolve().parents[2]
 MAX_BODY_BYTES = 100_000
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-class LiveServer(NamedTuple):
+class Running(NamedTuple):
     url: str
     key: str  # an admin API key, made with `roadlink keys create` as the docs say
 
@@ -45,59 +36,21 @@ class LiveServer(NamedTuple):
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Running]:
     """`roadlink serve --workers 1` on a fresh SQLite file, and an admin key for it."""
     directory = tmp_path_factory.mktemp("live")
-    port = _free_port()
-    env = {
-        **os.environ,
-        "ROADLINK_DATABASE_URL": f"sqlite:///{directory / 'roadlink.db'}",
-        "ROADLINK_POLL_SECONDS": "0.05",
-        "ROADLINK_MAX_BODY_BYTES": str(MAX_BODY_BYTES),
-        "ROADLINK_LOG_LEVEL": "warning",
-    }
-    created = subprocess.run(
-        [sys.executable, "-m", "service.cli", "keys", "create", "--scope", "admin"],
-        cwd=directory,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=60,
+    live = LiveServer(
+        directory, sqlite_env(directory, ROADLINK_MAX_BODY_BYTES=str(MAX_BODY_BYTES)), free_port()
     )
-    assert created.returncode == 0, created.stderr
-    key = created.stdout.strip()
-    log = (directory / "serve.log").open("w")
-    process = subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", "1"],
-        cwd=directory,
-        env=env,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-    )
-    url = f"http://127.0.0.1:{port}"
+    key = roadlink("keys", "create", "--scope", "admin", env=live.env, cwd=directory).strip()
+    live.start(workers=1)
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            assert process.poll() is None, (directory / "serve.log").read_text()
-            try:
-                if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            assert time.monotonic() < deadline, "the server did not become ready"
-            time.sleep(0.1)
-        yield LiveServer(url, key)
+        yield Running(live.url, key)
     finally:
-        process.send_signal(signal.SIGINT)  # as Ctrl-C: the API and its workers stop
-        try:
-            process.wait(20)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-        log.close()
+        live.stop()  # SIGINT, as Ctrl-C: the API and its workers stop
 
 
-def test_a_paper_sized_batch_over_http(server: LiveServer) -> None:
+def test_a_paper_sized_batch_over_http(server: Running) -> None:
     detections = simulate(preset("large"), seed=21).detections
     text = write_detections_csv(detections)
     with httpx.Client(base_url=server.url, headers=server.headers, timeout=30) as http:
@@ -125,7 +78,7 @@ def test_a_paper_sized_batch_over_http(server: LiveServer) -> None:
         assert 'roadlink_jobs{state="succeeded"} 1.0' in metrics
 
 
-def test_a_generated_client_drives_the_server(server: LiveServer, tmp_path: Path) -> None:
+def test_a_generated_client_drives_the_server(server: Running, tmp_path: Path) -> None:
     config = tmp_path / "config.yaml"
     config.write_text("package_name_override: roadlink_client\npost_hooks: []\n")
     generated = subprocess.run(
