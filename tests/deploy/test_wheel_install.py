@@ -136,10 +136,12 @@ class HealthEndpoint(http.server.BaseHTTPRequestHandler):
     server: ProbedServer
 
     def do_GET(self) -> None:
+        # Recorded before answering: once answered, the probe may exit and the test read the list
+        # before this thread had appended to it.
+        self.server.requested.append(self.path)
         status = self.server.healthz_status if self.path == "/healthz" else 404
         self.send_response(status)
         self.end_headers()
-        self.server.requested.append(self.path)
 
     def log_message(self, format: str, *args: object) -> None:
         """Silence the per-request log line."""
