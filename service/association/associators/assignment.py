@@ -117,7 +117,7 @@ class AssignmentParams(AssociatorParams):
         "sensors, before it is learned per segment.",
     )
     velocity_change_weight: float = Field(
-        default=0.25,
+        default=0.45,
         ge=0,
         le=10,
         description="Weight of the speed-change penalty against the travel-time one. Speeds "
@@ -125,7 +125,7 @@ class AssignmentParams(AssociatorParams):
         "travel-time term already uses both speeds; so speed continuity is a tie-breaker.",
     )
     preferred_speed_weight: float = Field(
-        default=1.0,
+        default=0.8,
         ge=0,
         le=10,
         description="Weight of the penalty on a speed far from the track's mean speed (relative "
