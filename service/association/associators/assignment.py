@@ -9,9 +9,10 @@ associator uses that structure:
    one-to-one to the sensor's detections by minimum-cost bipartite assignment. The cost of a link
    from detection a to detection b is a kinematic negative log-likelihood: the travel time
    predicted from both ends' speeds, `dx * (1/v_a + 1/v_b) / 2`, scaled by the segment's learned
-   bias, against the observed one; plus a robust penalty on the speed change; plus a penalty for
-   each sensor skipped. A detection left unmatched starts a track (a birth), a track left
-   unmatched waits (a miss); links costlier than `gate_cost` are never made.
+   bias, against the observed one; plus penalties on the speed change and on a speed far from
+   the track's own pace (each residual costs -2 log of its learned, heavy-tailed density); plus
+   a penalty for each sensor skipped. A detection left unmatched starts a track (a birth), a
+   track left unmatched waits (a miss); links costlier than `gate_cost` are never made.
 2. Candidate pairs are gated in time (sorted times and `searchsorted`), so the work grows with the
    number of detections, not its square, and each sensor's assignment is solved by the sparse
    LAPJVsp algorithm with dummy birth / miss nodes.
@@ -512,7 +513,8 @@ def _time_residual(
 def link_cost(
     params: AssignmentParams, model: SegmentModel, pairs: Pairs, before: Level, after: Level
 ) -> FloatArray:
-    """Cost of every candidate link a -> b: a sum of robust squared standardised residuals.
+    """Cost of every candidate link a -> b: a sum of -2 log densities of standardised residuals
+    (squared in the core, flatter in the learned heavy tails: `Tails`).
 
     `before` is the mean relative speed (and its number of detections) of the track ending in a,
     `after` that of the track starting with b (b alone, when linking sensor by sensor)."""
