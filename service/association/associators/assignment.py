@@ -213,7 +213,8 @@ class SegmentModel:
     """Learned behaviour of the road between sensor p and sensor p + span, for every p and span.
 
     Arrays are indexed [p, span] (span 0 unused): log of the travel-time bias over the kinematic
-    prediction, its spread, mean log speed ratio, and its spread.
+    prediction, its spread, mean log speed ratio, and its spread. The spread of a track's speed
+    about its own pace is one number for the road, as are the tails of the three residuals.
     """
 
     log_bias: FloatArray
