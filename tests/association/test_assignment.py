@@ -14,6 +14,7 @@ import pytest
 from service.association import Detections, associate
 from service.association.associators import DEFAULT_ASSOCIATOR
 from service.association.associators.assignment import AssignmentAssociator, Tails, match
+from service.association.detections import concatenate
 from service.simulation import SlowZone, preset, simulate
 
 
@@ -140,6 +141,32 @@ def test_a_single_detection_and_a_lone_pair():
     pair = Detections.from_columns([0.0, 100.0], [30.0, 30.0], [0.0, 100.0 / 30.0])
     groups = grouping(pair)
     assert groups[0] == groups[1] >= 0
+
+
+def test_a_target_the_batch_cut_off_after_one_sensor_is_still_a_target():
+    d = simulate(preset("medium"), seed=0).detections
+    first, last = float(d.position.min()), float(d.position.max())
+    begin, end = float(d.timestamp.min()), float(d.timestamp.max())
+    middle = float(np.unique(d.position)[4])
+    speed = float(np.median(d.velocity))
+    # Passed the first sensor just before the batch ended; passed the last just after it began
+    # (too early to have been seen upstream inside the batch); a lone report mid-road, mid-batch.
+    extra = Detections.from_columns(
+        [first, last, middle],
+        [speed, speed, speed],
+        [end - 1.0, begin + 1.0, 0.5 * (begin + end)],
+        sensor_id=[d.sensor_id[d.position == x][0] for x in (first, last, middle)],
+        detection_id=["x1", "x2", "x3"],
+        target=["late", "early", "clutter"],
+    )
+    cut = concatenate([d, extra])
+    groups = grouping(cut)
+    late, early, lone = groups[-3:]
+    assert late >= 0 and early >= 0 and late != early
+    assert np.sum(groups == late) == 1 and np.sum(groups == early) == 1
+    assert lone == -1, "a single report inside the batch's road and time is a false alarm"
+    result = associate(cut, "assignment")
+    assert result.metrics is not None and result.metrics.accuracy == 1.0
 
 
 def test_irregular_sensor_spacing():

@@ -24,7 +24,9 @@ associator uses that structure:
 4. Leftovers are repaired: a detection the sequential pass could not place (e.g. a vehicle almost
    stopped at a sensor) joins a track that lacks that sensor when it fits between the track's
    neighbouring detections; duplicated reports (the same passage reported twice) never start a
-   track of their own; tracks shorter than `min_track_length` are false alarms (-1).
+   track of their own; tracks shorter than `min_track_length` are false alarms (-1), unless the
+   batch's time window cut them (a vehicle that passed the first sensor in the batch's last
+   seconds is seen once, and is a target).
 """
 
 from __future__ import annotations
@@ -185,7 +187,9 @@ class AssignmentParams(AssociatorParams):
     min_track_length: int = Field(
         default=2,
         ge=1,
-        description="Tracks with fewer detections are taken for false alarms (left unassigned).",
+        description="Tracks with fewer detections are taken for false alarms (left "
+        "unassigned), unless the batch's time window explains why they are short: seen from the "
+        "first sensor or since the batch began, and up to the last sensor or until it ended.",
     )
     min_track_evidence: float = Field(
         default=8.0,
@@ -1004,12 +1008,41 @@ def _robust(values: FloatArray) -> tuple[float, float]:
     return centre, 1.4826 * float(_median(np.abs(values - centre)))
 
 
+def cut_by_window(s: Sensors, model: SegmentModel, first: IntArray, last: IntArray) -> BoolArray:
+    """Whether each track (from detection `first` to `last`) may be a target the batch cut off
+    at both ends: seen from the first sensor, or since the batch began too recently for it to
+    have passed its previous sensor inside the batch; and up to the last sensor, or too late to
+    reach its next one before the batch ended.
+
+    Such a track is a target however short: a vehicle that passed the first sensor in the
+    batch's last seconds is seen once, and that is no sign of a false alarm.
+    """
+    n_sensors = s.positions.size
+    t_begin, t_end = float(s.time.min()), float(s.time.max())
+
+    def longest_travel(a: IntArray, p: IntArray) -> FloatArray:
+        """Longest plausible travel time of detection a's target over segment p -> p + 1."""
+        gap = s.positions[np.minimum(p + 1, n_sensors - 1)] - s.positions[p]
+        slowest = np.exp(model.log_bias[p, 1] + 2.0 * model.time_spread[p, 1]) / s.speed[a]
+        return gap * slowest
+
+    p_first, p_last = s.sensor[first], s.sensor[last]
+    before = np.maximum(p_first - 1, 0)
+    starts_cut = (p_first == 0) | (s.time[first] - longest_travel(first, before) < t_begin)
+    ends_cut = (p_last == n_sensors - 1) | (
+        s.time[last] + longest_travel(last, np.minimum(p_last, n_sensors - 2)) > t_end
+    )
+    return starts_cut & ends_cut
+
+
 def finish(s: Sensors, model: SegmentModel, params: AssignmentParams, track: IntArray) -> IntArray:
     """Keep the tracks that are better explained as targets than as false alarms; number them.
 
     A track's evidence is what its links save over leaving their detections apart: the sum of
     (gate_cost - link cost). A few false alarms can chain up through loose, sensor-skipping
-    links; their evidence stays small, a real target's does not.
+    links; their evidence stays small, a real target's does not. A track shorter than
+    `min_track_length` is kept only when the batch's time window explains its shortness
+    (`cut_by_window`).
     """
     out = np.full(track.size, -1, dtype=np.int64)
     assigned = np.flatnonzero(track >= 0)
@@ -1033,7 +1066,12 @@ def finish(s: Sensors, model: SegmentModel, params: AssignmentParams, track: Int
     saving = params.gate_cost - link_cost(params, model, pairs, before, after)
     evidence = np.bincount(ids[linked], weights=np.maximum(saving, 0.0), minlength=ids.max() + 1)
     sizes = np.bincount(ids)
-    good = (sizes >= params.min_track_length) & (evidence >= params.min_track_evidence)
+    # Links are judged by their evidence; a lone detection has none to judge, only its place.
+    convincing = (evidence >= params.min_track_evidence) | (sizes == 1)
+    end = np.r_[start[1:], chain.size] - 1
+    long_enough = sizes >= params.min_track_length
+    long_enough[ids[start]] |= cut_by_window(s, model, chain[start], chain[end])
+    good = convincing & long_enough
     keep = chain[good[ids]]
     _, out[keep] = np.unique(track[keep], return_inverse=True)
     return out
