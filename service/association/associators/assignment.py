@@ -1010,29 +1010,37 @@ def _robust(values: FloatArray) -> tuple[float, float]:
 
 def cut_by_window(s: Sensors, model: SegmentModel, first: IntArray, last: IntArray) -> BoolArray:
     """Whether each track (from detection `first` to `last`) may be a target the batch cut off
-    at both ends: seen from the first sensor, or since the batch began too recently for it to
-    have passed its previous sensor inside the batch; and up to the last sensor, or too late to
-    reach its next one before the batch ended.
+    at both ends: `starts_explained` and `ends_explained`.
 
     Such a track is a target however short: a vehicle that passed the first sensor in the
     batch's last seconds is seen once, and that is no sign of a false alarm.
     """
-    n_sensors = s.positions.size
-    t_begin, t_end = float(s.time.min()), float(s.time.max())
+    return starts_explained(s, model, first) & ends_explained(s, model, last)
 
-    def longest_travel(a: IntArray, p: IntArray) -> FloatArray:
-        """Longest plausible travel time of detection a's target over segment p -> p + 1."""
-        gap = s.positions[np.minimum(p + 1, n_sensors - 1)] - s.positions[p]
-        slowest = np.exp(model.log_bias[p, 1] + 2.0 * model.time_spread[p, 1]) / s.speed[a]
-        return gap * slowest
 
-    p_first, p_last = s.sensor[first], s.sensor[last]
-    before = np.maximum(p_first - 1, 0)
-    starts_cut = (p_first == 0) | (s.time[first] - longest_travel(first, before) < t_begin)
-    ends_cut = (p_last == n_sensors - 1) | (
-        s.time[last] + longest_travel(last, np.minimum(p_last, n_sensors - 2)) > t_end
-    )
-    return starts_cut & ends_cut
+def starts_explained(s: Sensors, model: SegmentModel, first: IntArray) -> BoolArray:
+    """Whether a track starting with detection `first` needs no missed detection to explain its
+    start: it is at the first sensor, or the batch began too recently for its target to have
+    passed the previous sensor inside it."""
+    p = s.sensor[first]
+    before = np.maximum(p - 1, 0)
+    return (p == 0) | (s.time[first] - _longest_travel(s, model, first, before) < s.time.min())
+
+
+def ends_explained(s: Sensors, model: SegmentModel, last: IntArray) -> BoolArray:
+    """Whether a track ending with detection `last` needs no missed detection to explain its
+    end: it is at the last sensor, or the batch ended too soon for its target to reach the
+    next one inside it."""
+    p = s.sensor[last]
+    final = s.positions.size - 1
+    after = np.minimum(p, max(final - 1, 0))
+    return (p == final) | (s.time[last] + _longest_travel(s, model, last, after) > s.time.max())
+
+
+def _longest_travel(s: Sensors, model: SegmentModel, a: IntArray, p: IntArray) -> FloatArray:
+    """Longest plausible travel time of detection a's target over the segment p -> p + 1."""
+    gap = s.positions[np.minimum(p + 1, s.positions.size - 1)] - s.positions[p]
+    return gap * np.exp(model.log_bias[p, 1] + 2.0 * model.time_spread[p, 1]) / s.speed[a]
 
 
 def finish(s: Sensors, model: SegmentModel, params: AssignmentParams, track: IntArray) -> IntArray:
