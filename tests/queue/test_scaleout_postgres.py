@@ -44,6 +44,9 @@ VICTIM_SECONDS = 3.0  # long enough to be caught mid-run, short enough to re-run
 
 RECORD_TRANSITIONS = """
 CREATE TABLE test_transition (
+    -- Rows come back in no guaranteed order without ORDER BY (concurrent inserts may land on
+    -- different pages): the sequence records the order the transitions happened in.
+    seq bigserial PRIMARY KEY,
     job_id uuid NOT NULL,
     old_state text NOT NULL,
     new_state text NOT NULL,
@@ -52,7 +55,7 @@ CREATE TABLE test_transition (
 );
 CREATE FUNCTION test_record_transition() RETURNS trigger LANGUAGE plpgsql AS $$
 BEGIN
-    INSERT INTO test_transition
+    INSERT INTO test_transition (job_id, old_state, new_state, owner, attempts)
     VALUES (NEW.id, OLD.state, NEW.state, COALESCE(NEW.lease_owner, OLD.lease_owner), NEW.attempts);
     RETURN NEW;
 END $$;
@@ -208,7 +211,7 @@ def test_each_job_succeeds_exactly_once_across_killed_and_frozen_workers(
         results = session.scalar(select(func.count()).select_from(JobResult))
         attempts = dict(session.execute(select(Job.id, Job.attempts)).all())
         transitions = session.execute(
-            text("SELECT job_id, old_state, new_state, owner FROM test_transition")
+            text("SELECT job_id, old_state, new_state, owner FROM test_transition ORDER BY seq")
         ).all()
     engine.dispose()
     assert states == {"succeeded": len(all_jobs)}
