@@ -167,6 +167,9 @@ def test_a_target_the_batch_cut_off_after_one_sensor_is_still_a_target():
     assert lone == -1, "a single report inside the batch's road and time is a false alarm"
     result = associate(cut, "assignment")
     assert result.metrics is not None and result.metrics.accuracy == 1.0
+    # With min_track_length 1 no track is too short: the lone report is a target of its own.
+    keep_all = AssignmentAssociator(min_track_length=1)
+    assert keep_all.group(cut.without_labels())[-1] >= 0
 
 
 def test_irregular_sensor_spacing():
