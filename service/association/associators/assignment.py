@@ -1008,16 +1008,6 @@ def _robust(values: FloatArray) -> tuple[float, float]:
     return centre, 1.4826 * float(_median(np.abs(values - centre)))
 
 
-def cut_by_window(s: Sensors, model: SegmentModel, first: IntArray, last: IntArray) -> BoolArray:
-    """Whether each track (from detection `first` to `last`) may be a target the batch cut off
-    at both ends: `starts_explained` and `ends_explained`.
-
-    Such a track is a target however short: a vehicle that passed the first sensor in the
-    batch's last seconds is seen once, and that is no sign of a false alarm.
-    """
-    return starts_explained(s, model, first) & ends_explained(s, model, last)
-
-
 def starts_explained(s: Sensors, model: SegmentModel, first: IntArray) -> BoolArray:
     """Whether a track starting with detection `first` needs no missed detection to explain its
     start: it is at the first sensor, or the batch began too recently for its target to have
@@ -1049,8 +1039,9 @@ def finish(s: Sensors, model: SegmentModel, params: AssignmentParams, track: Int
     A track's evidence is what its links save over leaving their detections apart: the sum of
     (gate_cost - link cost). A few false alarms can chain up through loose, sensor-skipping
     links; their evidence stays small, a real target's does not. A track shorter than
-    `min_track_length` is kept only when the batch's time window explains its shortness
-    (`cut_by_window`).
+    `min_track_length` is kept only when the batch's time window explains its shortness: the
+    batch cut it off at both ends (`starts_explained`, `ends_explained`), as it does a vehicle
+    that passed the first sensor in its last seconds.
     """
     out = np.full(track.size, -1, dtype=np.int64)
     assigned = np.flatnonzero(track >= 0)
@@ -1078,7 +1069,9 @@ def finish(s: Sensors, model: SegmentModel, params: AssignmentParams, track: Int
     convincing = (evidence >= params.min_track_evidence) | (sizes == 1)
     end = np.r_[start[1:], chain.size] - 1
     long_enough = sizes >= params.min_track_length
-    long_enough[ids[start]] |= cut_by_window(s, model, chain[start], chain[end])
+    long_enough[ids[start]] |= starts_explained(s, model, chain[start]) & ends_explained(
+        s, model, chain[end]
+    )
     good = convincing & long_enough
     keep = chain[good[ids]]
     _, out[keep] = np.unique(track[keep], return_inverse=True)
