@@ -9,24 +9,27 @@ associator uses that structure:
    one-to-one to the sensor's detections by minimum-cost bipartite assignment. The cost of a link
    from detection a to detection b is a kinematic negative log-likelihood: the travel time
    predicted from both ends' speeds, `dx * (1/v_a + 1/v_b) / 2`, scaled by the segment's learned
-   bias, against the observed one; plus penalties on the speed change and on a speed far from
+   bias and skewed towards one end where the segment's own links say so, against the observed
+   one; plus penalties on the speed change and on a speed far from
    the track's own pace (each residual costs -2 log of its learned, heavy-tailed density); plus
    a penalty for each sensor skipped. A detection left unmatched starts a track (a birth), a
    track left unmatched waits (a miss); links costlier than `gate_cost` are never made.
 2. Candidate pairs are gated in time (sorted times and `searchsorted`), so the work grows with the
    number of detections, not its square, and each sensor's assignment is solved by the sparse
    LAPJVsp algorithm with dummy birth / miss nodes.
-3. A fixed kinematic model breaks in congestion, so each segment's behaviour (travel-time bias and
-   spread, speed ratio and its spread) is learned robustly (median, MAD) from the links of the
-   confident tracks, and the detections are re-associated with it: a few EM-style rounds. Each
-   round also measures how heavy the residuals' tails are (`Tails`): in real traffic a few per
-   cent of the links lie 5 to 20 core spreads off, and a Gaussian cost would break them.
-4. Leftovers are repaired: a detection the sequential pass could not place (e.g. a vehicle almost
-   stopped at a sensor) joins a track that lacks that sensor when it fits between the track's
-   neighbouring detections; duplicated reports (the same passage reported twice) never start a
-   track of their own; tracks shorter than `min_track_length` are false alarms (-1), unless the
-   batch's time window cut them (a vehicle that passed the first sensor in the batch's last
-   seconds is seen once, and is a target).
+3. A fixed kinematic model breaks in congestion, so each segment's behaviour (travel-time bias,
+   skew and spread, speed ratio and its spread) is learned robustly (median, MAD) from the links
+   of the confident tracks, and the detections are re-associated with it: a few EM-style
+   rounds. Each round also measures how heavy the residuals' tails are (`Tails`): in real
+   traffic a few per cent of the links lie 5 to 20 core spreads off, and a Gaussian cost would
+   break them.
+4. The sequential pass chooses each link knowing only the past, so the tracks are then re-paired
+   with hindsight: at every sensor boundary, track prefixes are matched to track suffixes again,
+   each seen whole (`refine_boundaries`).
+5. Faults: duplicated reports (the same passage reported twice) never start a track of their own;
+   tracks shorter than `min_track_length`, or whose links save too little over leaving their
+   detections apart, are false alarms (-1), unless the batch's time window cut them (a vehicle
+   that passed the first sensor in the batch's last seconds is seen once, and is a target).
 """
 
 from __future__ import annotations
@@ -217,11 +220,16 @@ class SegmentModel:
     """Learned behaviour of the road between sensor p and sensor p + span, for every p and span.
 
     Arrays are indexed [p, span] (span 0 unused): log of the travel-time bias over the kinematic
-    prediction, its spread, mean log speed ratio, and its spread. The spread of a track's speed
+    prediction, the skew of that prediction, the bias's spread, mean log speed ratio, and its
+    spread. A link a -> b is predicted to take `exp(log_bias) * dx * ((1 - skew) / v_a +
+    skew / v_b)`: skew 0.5 weighs both ends' speeds alike (the kinematic prediction); where
+    vehicles brake or accelerate at one place, near one end, that end's speed says less about
+    the travel time and the learned skew moves away from it. The spread of a track's speed
     about its own pace is one number for the road, as are the tails of the three residuals.
     """
 
     log_bias: FloatArray
+    skew: FloatArray
     time_spread: FloatArray
     log_speed_ratio: FloatArray
     speed_spread: FloatArray
@@ -236,9 +244,9 @@ class SegmentModel:
 
         Every segment's travel-time bias is the mode of log(observed / kinematic travel time)
         over all pairs of its end sensors' detections within a broad window: the true pairs
-        pile up at the segment's bias, unrelated pairs spread thin. So a slow zone that changes
-        speeds at a sensor shows here, before the first link is made. The speed ratio is that of
-        the sensors' median speeds.
+        pile up at the segment's bias, unrelated pairs spread thin (`_travel_time_prior`). So a
+        slow zone that changes speeds at a sensor shows here, before the first link is made. The
+        speed ratio is that of the sensors' median speeds; the skew is 0.5, until learned.
         """
         n_sensors = s.positions.size
         shape = (n_sensors, max_span + 1)
@@ -253,9 +261,10 @@ class SegmentModel:
             for span in range(1, min(max_span, n_sensors - 1 - p) + 1):
                 q = p + span
                 log_ratio[p, span] = np.log(medians[q] / medians[p])
-                log_bias[p, span] = _travel_time_mode(s, a_all, q)
+                log_bias[p, span] = _travel_time_prior(s, a_all, q)
         return cls(
             log_bias,
+            np.full(shape, 0.5),
             np.full(shape, params.travel_time_spread),
             log_ratio,
             np.broadcast_to(
@@ -344,55 +353,108 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     )
 
 
-def _travel_time_mode(s: Sensors, a: IntArray, q: int) -> float:
-    """The most common log(observed / kinematic travel time) from detections a to sensor q."""
-    members = s.members(q)
-    if members.size == 0 or a.size == 0:
+def _travel_time_prior(s: Sensors, a: IntArray, q: int) -> float:
+    """A segment's log bias before anything is linked: the most common log(observed / kinematic
+    travel time) of the pairs from detections a to sensor q, or 0, the kinematic prediction,
+    unless the data clearly say otherwise."""
+    pairs = CandidatePairs.within_reach(s, a, q)
+    if pairs is None:
         return 0.0
-    times = s.time[members]
-    dx = s.positions[q] - s.positions[s.sensor[a[0]]]
-    slowest = float(s.speed[members].min())
-    reach = np.exp(PRIOR_LOG_RANGE)
-    first = np.searchsorted(times, s.time[a], side="right")
-    last = np.searchsorted(times, s.time[a] + reach * dx * 0.5 * (1 / s.speed[a] + 1 / slowest))
-    count = np.maximum(last - first, 0)
-    pa = np.repeat(a, count)
-    pb = members[
-        np.repeat(first, count)
-        + np.arange(count.sum())
-        - np.repeat(np.cumsum(count) - count, count)
-    ]
-    if pa.size == 0:
-        return 0.0
-    kinematic = dx * 0.5 * (1.0 / s.speed[pa] + 1.0 / s.speed[pb])
-    values = np.log((s.time[pb] - s.time[pa]) / kinematic)
-    values = values[np.abs(values) <= PRIOR_LOG_RANGE]
-    if values.size == 0:
-        return 0.0
-    bins = np.arange(-PRIOR_LOG_RANGE, PRIOR_LOG_RANGE + PRIOR_BIN, PRIOR_BIN)
-    histogram = np.histogram(values, bins)[0].astype(np.float64)
-    # Unrelated pairs fall uniformly in time at the sensor's rate, so their expected number in a
-    # bin grows as e^value; the true pairs are the excess over that background.
-    span_of_time = float(times[-1] - times[0])
-    rate = (members.size - 1) / span_of_time if span_of_time > 0 else 0.0
-    typical = dx * 0.5 * (1.0 / s.speed[a] + 1.0 / float(_median(s.speed[members])))
-    background = rate * float(typical.sum()) * np.diff(np.exp(bins))
-    smooth = np.convolve(histogram - background, [1.0, 2.0, 1.0], mode="same")
-    variance = np.convolve(histogram, [1.0, 4.0, 1.0], mode="same") + 1.0  # Poisson counts
-    best = int(np.argmax(smooth))
-    kinematic = int(np.searchsorted(bins, 0.0) - 1)
-    # The kinematic prediction stands unless another bias explains clearly more pairs: that
+    every = np.ones(pairs.pa.size, dtype=bool)
+    mode = pairs.excess(every)
+    if a.size < PRIOR_TEST_SAMPLE:
+        # A handful of targets: no power for a test.
+        return mode.centre() if mode.excess.max() > 0 else 0.0
+    # The kinematic prediction stands unless another bias explains clearly more pairs: the
     # background is rough (arrivals bunch in queues, speeds mix, platoons repeat at one
     # headway), so a bump that is merely above it is no evidence of a bias.
-    lead = smooth[best] - smooth[kinematic]
-    if smooth[best] <= 0 or (
-        a.size >= PRIOR_TEST_SAMPLE
-        and lead < PRIOR_SIGNIFICANCE * np.sqrt(variance[best] + variance[kinematic])
-    ):
-        return 0.0
-    peak = 0.5 * (bins[best] + bins[best + 1])
-    near = values[np.abs(values - peak) <= 2 * PRIOR_BIN]
-    return float(_median(near)) if near.size else float(peak)
+    return mode.centre() if mode.significance() >= PRIOR_SIGNIFICANCE else 0.0
+
+
+PRIOR_BINS = np.arange(-PRIOR_LOG_RANGE, PRIOR_LOG_RANGE + PRIOR_BIN, PRIOR_BIN)
+PRIOR_ZERO_BIN = int(np.searchsorted(PRIOR_BINS, 0.0) - 1)
+
+
+@dataclass
+class CandidatePairs:
+    """Every pair (pa, pb) of a detection from sample a with a later detection at sensor q that
+    the segment's prior could link: up to 10x the kinematic travel time."""
+
+    s: Sensors
+    a: IntArray
+    pa: IntArray
+    pb: IntArray
+    length: float
+    rate: float  # detections per time unit at q
+    typical_inverse_b: float  # 1 / the median speed at q
+
+    @classmethod
+    def within_reach(cls, s: Sensors, a: IntArray, q: int) -> CandidatePairs | None:
+        members = s.members(q)
+        if members.size == 0 or a.size == 0:
+            return None
+        times = s.time[members]
+        length = float(s.positions[q] - s.positions[s.sensor[a[0]]])
+        slowest = float(s.speed[members].min())
+        reach = np.exp(PRIOR_LOG_RANGE) * length * 0.5 * (1 / s.speed[a] + 1 / slowest)
+        first = np.searchsorted(times, s.time[a], side="right")
+        count = np.maximum(np.searchsorted(times, s.time[a] + reach) - first, 0)
+        if count.sum() == 0:
+            return None
+        pa = np.repeat(a, count)
+        pb = members[
+            np.repeat(first, count)
+            + np.arange(count.sum())
+            - np.repeat(np.cumsum(count) - count, count)
+        ]
+        span_of_time = float(times[-1] - times[0])
+        rate = (members.size - 1) / span_of_time if span_of_time > 0 else 0.0
+        return cls(s, a, pa, pb, length, rate, 1.0 / float(_median(s.speed[members])))
+
+    def excess(self, keep: BoolArray) -> BiasHistogram:
+        """Histogram of log(observed / kinematic travel time) of the kept pairs less the
+        background of unrelated pairs: those fall uniformly in time at q's rate, so their
+        expected number in a bin grows as e^value (thinned as the pairs are)."""
+        s, pa, pb = self.s, self.pa[keep], self.pb[keep]
+        kinematic = self.length * 0.5 * (1.0 / s.speed[pa] + 1.0 / s.speed[pb])
+        values = np.log((s.time[pb] - s.time[pa]) / kinematic)
+        values = values[np.abs(values) <= PRIOR_LOG_RANGE]
+        histogram = np.histogram(values, PRIOR_BINS)[0].astype(np.float64)
+        typical = self.length * 0.5 * (1.0 / s.speed[self.a] + self.typical_inverse_b)
+        background = (
+            float(keep.mean()) * self.rate * float(typical.sum()) * np.diff(np.exp(PRIOR_BINS))
+        )
+        return BiasHistogram(
+            values,
+            np.convolve(histogram - background, [1.0, 2.0, 1.0], mode="same"),
+            np.convolve(histogram, [1.0, 4.0, 1.0], mode="same") + 1.0,  # Poisson counts
+        )
+
+
+@dataclass
+class BiasHistogram:
+    """Pairs' log(observed / kinematic travel time): the smoothed count in each of PRIOR_BINS
+    less its background (`excess`), and that count's variance."""
+
+    values: FloatArray
+    excess: FloatArray
+    variance: FloatArray
+
+    def significance(self) -> float:
+        """How many standard deviations the highest excess stands above the kinematic
+        prediction's own (bias 0)."""
+        best = int(np.argmax(self.excess))
+        if self.excess[best] <= 0:
+            return -np.inf
+        lead = self.excess[best] - self.excess[PRIOR_ZERO_BIN]
+        return float(lead / np.sqrt(self.variance[best] + self.variance[PRIOR_ZERO_BIN]))
+
+    def centre(self) -> float:
+        """The log bias at the highest excess: the median of the values near it."""
+        best = int(np.argmax(self.excess))
+        peak = 0.5 * (PRIOR_BINS[best] + PRIOR_BINS[best + 1])
+        near = self.values[np.abs(self.values - peak) <= 2 * PRIOR_BIN]
+        return float(_median(near)) if near.size else float(peak)
 
 
 @dataclass(frozen=True)
@@ -481,14 +543,12 @@ class Pairs:
         """The given links, whatever sensors they join."""
         p = s.sensor[a]
         span = s.sensor[b] - p
-        half_length = (
-            np.exp(model.log_bias[p, span]) * 0.5 * (s.positions[s.sensor[b]] - s.positions[p])
-        )
+        length = np.exp(model.log_bias[p, span]) * (s.positions[s.sensor[b]] - s.positions[p])
+        w = model.skew[p, span]
         r_time, ratio = _time_residual(
             params,
-            half_length,
+            length * ((1.0 - w) / s.speed[a] + w / s.speed[b]),
             s.time[b] - s.time[a],
-            1.0 / s.speed[a] + 1.0 / s.speed[b],
             s.log_speed[b] - s.log_speed[a] - model.log_speed_ratio[p, span],
             model.time_spread[p, span],
         )
@@ -497,17 +557,14 @@ class Pairs:
 
 def _time_residual(
     params: AssignmentParams,
-    half_length: FloatArray,
+    predicted: FloatArray,
     travel: FloatArray,
-    inverse_speeds: FloatArray,
     ratio: FloatArray,
     time_spread: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
     """Standardised error of a travel time against the segment's prediction from both ends'
-    speeds (`half_length` is the segment's length / 2 times its bias). The unexplained speed
-    change `ratio` widens the spread: where between the sensors the speed changed is unknown, so
-    the travel time is too."""
-    predicted = half_length * inverse_speeds
+    speeds (`predicted`, see SegmentModel). The unexplained speed change `ratio` widens the
+    spread: where between the sensors the speed changed is unknown, so the travel time is too."""
     ambiguity = params.velocity_change_ambiguity * ratio
     relative = np.sqrt(time_spread * time_spread + ambiguity * ambiguity)
     absolute = relative * predicted
@@ -565,8 +622,11 @@ def gated_pairs(
     # Everything about a, once per a.
     p = s.sensor[a]
     span = q - p
-    half_length = np.exp(model.log_bias[p, span]) * 0.5 * (s.positions[q] - s.positions[p])
-    inverse_a = 1.0 / s.speed[a]
+    length = np.exp(model.log_bias[p, span]) * (s.positions[q] - s.positions[p])
+    w = model.skew[p, span]
+    # The prediction is from_a + to_b / v_b: the part of the travel time each end's speed explains.
+    from_a = length * (1.0 - w) / s.speed[a]
+    to_b = length * w
     centre = s.log_speed[a] + model.log_speed_ratio[p, span]
     time_spread = model.time_spread[p, span]
     # The window: any speed at q, the gate's number of spreads, the widest ambiguity.
@@ -576,8 +636,8 @@ def gated_pairs(
     relative = np.sqrt(time_spread**2 + (params.velocity_change_ambiguity * worst) ** 2)
     slack = reach * params.timestamp_noise * np.sqrt(2.0)
     t_a = s.time[a]
-    lo = t_a + half_length * (inverse_a + fastest) * np.exp(-reach * relative) - slack
-    hi = t_a + half_length * (inverse_a + slowest) * (1.0 + reach * relative) + slack
+    lo = t_a + (from_a + to_b * fastest) * np.exp(-reach * relative) - slack
+    hi = t_a + (from_a + to_b * slowest) * (1.0 + reach * relative) + slack
     first = np.searchsorted(times, lo, side="left")
     count = np.maximum(np.searchsorted(times, hi, side="right") - first, 0)
     total = int(count.sum())
@@ -588,9 +648,8 @@ def gated_pairs(
 
     r_time, ratio = _time_residual(
         params,
-        each(half_length),
+        each(from_a) + each(to_b) * inverse_q[local],
         times[local] - each(t_a),
-        each(inverse_a) + inverse_q[local],
         log_q[local] - each(centre),
         each(time_spread),
     )
@@ -884,6 +943,7 @@ def learn_segments(
     max_span = prior.log_bias.shape[1] - 1
     prior = SegmentModel(
         prior.log_bias.copy(),
+        prior.skew.copy(),
         prior.time_spread.copy(),
         prior.log_speed_ratio.copy(),
         prior.speed_spread.copy(),
@@ -917,10 +977,19 @@ def learn_segments(
         links_a.append(a)
         links_b.append(b)
         dx = s.positions[s.sensor[b]] - s.positions[p]
-        log_bias = np.log(dt / (dx * 0.5 * (1.0 / s.speed[a] + 1.0 / s.speed[b])))
         ratio = s.log_speed[b] - s.log_speed[a]
         counts = np.bincount(p, minlength=n_sensors)
         seen = np.flatnonzero(counts)
+        weight = counts / (counts + params.min_segment_samples)
+        skew = np.full(n_sensors, 0.5)
+        for k in seen:
+            here = p == k
+            skew[k] = 0.5 + weight[k] * (
+                _best_skew(dt[here], dx[here], s.speed[a[here]], s.speed[b[here]]) - 0.5
+            )
+        prior.skew[:, span] = skew
+        w_link = skew[p]
+        log_bias = np.log(dt / (dx * ((1.0 - w_link) / s.speed[a] + w_link / s.speed[b])))
         # Spreads pooled over all segments, each residual taken from its own segment's median.
         bias_centre = np.zeros(n_sensors)
         ratio_centre = np.zeros(n_sensors)
@@ -933,7 +1002,6 @@ def learn_segments(
         # segment seen by ten targets must not get a spread measured on ten numbers alone); its
         # centres towards the prior's by precision (the prior is a rough guess, so a handful of
         # links overrule it).
-        weight = counts / (counts + params.min_segment_samples)
         for k in seen:
             here = p == k
             w, n_k = weight[k], counts[k]
@@ -977,6 +1045,30 @@ def learn_segments(
     if confident.size:
         prior.level_tails = Tails.fit(deviation / prior.preferred_speed_spread, prior.level_tails)
     return prior
+
+
+SKEW_GRID = np.linspace(0.0, 1.0, 21)
+
+
+def _best_skew(dt: FloatArray, dx: FloatArray, speed_a: FloatArray, speed_b: FloatArray) -> float:
+    """The share w of a segment's travel time best predicted from its far end's speed:
+    travel = bias * dx * ((1 - w) / v_a + w / v_b) with the least robust spread of log errors.
+    Where speeds change at a known place (braking for a slow zone just before its sensor), one
+    end's speed explains most of the time."""
+    if dt.size < 3:
+        return 0.5
+    pace_a = (dx / speed_a)[:, None]
+    pace_b = (dx / speed_b)[:, None]
+    errors = np.log(dt[:, None] / ((1.0 - SKEW_GRID) * pace_a + SKEW_GRID * pace_b))
+    centred = errors - np.median(errors, axis=0)
+    spread = np.median(np.abs(centred), axis=0)
+    best = int(np.argmin(spread))
+    # The symmetric prediction stands unless another share is clearly better: beyond the
+    # sampling error of a spread measured on this many links.
+    symmetric = spread[SKEW_GRID.size // 2]
+    if spread[best] > symmetric * (1.0 - 2.0 / np.sqrt(dt.size)):
+        return 0.5
+    return float(SKEW_GRID[best])
 
 
 def _posterior_centre(
