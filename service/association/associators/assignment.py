@@ -57,6 +57,9 @@ REFINE_GATE_FACTOR = 2.0
 PRIOR_LOG_RANGE = float(np.log(10.0))
 PRIOR_BIN = 0.05
 PRIOR_SAMPLE = 400
+# That search also looks at the pairs alone whose relative speeds differ by at most this share of
+# the spread of relative speeds at a sensor.
+PRIOR_AGREEMENT = 0.5
 # A pile-up of pairs away from the kinematic prediction is believed only when it holds this many
 # standard deviations (Poisson) more pairs than the kinematic prediction's own bin.
 PRIOR_SIGNIFICANCE = 5.0
@@ -361,14 +364,25 @@ def _travel_time_prior(s: Sensors, a: IntArray, q: int) -> float:
     if pairs is None:
         return 0.0
     every = np.ones(pairs.pa.size, dtype=bool)
-    mode = pairs.excess(every)
     if a.size < PRIOR_TEST_SAMPLE:
-        # A handful of targets: no power for a test.
+        # A handful of targets: no background to thin, no power for a test.
+        mode = pairs.excess(every)
         return mode.centre() if mode.excess.max() > 0 else 0.0
+    # A driver often keeps its place among the speeds around it, so the pairs whose speeds,
+    # relative to their sensors' typical speeds, agree hold most true pairs and few unrelated
+    # ones; but not where every driver brakes to a speed of its own: both selections are tried.
+    change = s.relative_speed[pairs.pb] - s.relative_speed[pairs.pa]
+    agree = np.abs(change) <= PRIOR_AGREEMENT * _robust(s.relative_speed[s.members(q)])[1]
+    best, best_significance = 0.0, -np.inf
+    for keep in (agree, every):
+        mode = pairs.excess(keep)
+        significance = mode.significance()
+        if significance > best_significance:
+            best, best_significance = mode.centre(), significance
     # The kinematic prediction stands unless another bias explains clearly more pairs: the
     # background is rough (arrivals bunch in queues, speeds mix, platoons repeat at one
     # headway), so a bump that is merely above it is no evidence of a bias.
-    return mode.centre() if mode.significance() >= PRIOR_SIGNIFICANCE else 0.0
+    return best if best_significance >= PRIOR_SIGNIFICANCE else 0.0
 
 
 PRIOR_BINS = np.arange(-PRIOR_LOG_RANGE, PRIOR_LOG_RANGE + PRIOR_BIN, PRIOR_BIN)
