@@ -126,20 +126,22 @@ class AssignmentParams(AssociatorParams):
         "sensors, before it is learned per segment.",
     )
     velocity_change_weight: float = Field(
-        default=0.45,
+        default=0.9,
         ge=0,
         le=10,
         description="Weight of the speed-change penalty against the travel-time one. Speeds "
-        "fluctuate most when targets overtake, exactly where links are hardest, and the "
-        "travel-time term already uses both speeds; so speed continuity is a tie-breaker.",
+        "change little between neighbouring sensors, even in car-following traffic; but most "
+        "when targets overtake, and the travel-time term already uses both speeds. Higher "
+        "trusts speed continuity more.",
     )
     preferred_speed_weight: float = Field(
-        default=0.8,
+        default=0.35,
         ge=0,
         le=10,
         description="Weight of the penalty on a speed far from the track's mean speed (relative "
-        "to each sensor's typical speed): drivers keep their own pace, so this separates "
-        "targets whose speeds cross while they overtake.",
+        "to each sensor's typical speed): drivers keep their own pace, which separates targets "
+        "whose speeds cross while they overtake; but in car-following traffic the car in front "
+        "sets the pace. Higher trusts a driver's own pace more.",
     )
     preferred_speed_memory: float = Field(
         default=3.0,
