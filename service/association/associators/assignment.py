@@ -97,16 +97,16 @@ class AssignmentParams(AssociatorParams):
         "misses but lets a track jump further, over more candidates.",
     )
     gate_cost: float = Field(
-        default=16.0,
+        default=18.0,
         gt=0,
         description="Largest cost of a link (a sum of -2 log densities of standardised "
-        "residuals: r^2 in the core, flatter in the learned heavy tails, so 16 is about four "
+        "residuals: r^2 in the core, flatter in the learned heavy tails, so 18 is about four "
         "core standard deviations); leaving a detection unlinked "
         "costs half of it. Lower leaves more detections as separate tracks; higher links more "
         "boldly.",
     )
     miss_cost: float = Field(
-        default=4.0,
+        default=6.0,
         ge=0,
         description="Extra cost per sensor skipped by a link: how much a consecutive link is "
         "preferred to a link over a missed detection.",
@@ -152,7 +152,7 @@ class AssignmentParams(AssociatorParams):
         "Higher trusts a driver's pace more.",
     )
     velocity_change_ambiguity: float = Field(
-        default=0.5,
+        default=0.35,
         ge=0,
         le=5,
         description="How much an unexplained speed change widens the travel-time gate: where "
