@@ -250,23 +250,34 @@ class SegmentModel:
         Every segment's travel-time bias is the mode of log(observed / kinematic travel time)
         over all pairs of its end sensors' detections within a broad window: the true pairs
         pile up at the segment's bias, unrelated pairs spread thin (`_travel_time_prior`). So a
-        slow zone that changes speeds at a sensor shows here, before the first link is made. The
-        speed ratio is that of the sensors' median speeds; the skew is 0.5, until learned.
+        slow zone that changes speeds at a sensor shows here, before the first link is made.
+        A link over missed detections (span > 1) takes the sum of its segments' typical travel
+        times: travel times add up, while between distant sensors there are many more unrelated
+        pairs per true one, and the highest bump of their mode is mostly chance. The speed ratio
+        is that of the sensors' median speeds; the skew is 0.5, until learned.
         """
         n_sensors = s.positions.size
         shape = (n_sensors, max_span + 1)
         span_axis = np.arange(max_span + 1, dtype=np.float64)
         log_bias = np.zeros(shape)
         log_ratio = np.zeros(shape)
-        medians = [float(_median(s.speed[s.members(k)])) for k in range(n_sensors)]
-        for p in range(n_sensors):
+        medians = np.array([_median(s.speed[s.members(k)]) for k in range(n_sensors)])
+        for p in range(n_sensors - 1):
             # A few hundred detections, evenly spread in time, are plenty to find a mode.
-            members = s.members(p)
-            a_all = members[:: max(1, members.size // PRIOR_SAMPLE)]
+            sample = s.members(p)[:: max(1, s.members(p).size // PRIOR_SAMPLE)]
+            log_bias[p, 1] = _travel_time_prior(s, sample, p + 1)
+
+        # A typical target's travel time over every segment, and its kinematic prediction.
+        def kinematic(p: int, q: int) -> float:
+            return float(s.positions[q] - s.positions[p]) * 0.5 * (1 / medians[p] + 1 / medians[q])
+
+        typical = [np.exp(log_bias[p, 1]) * kinematic(p, p + 1) for p in range(n_sensors - 1)]
+        for p in range(n_sensors):
             for span in range(1, min(max_span, n_sensors - 1 - p) + 1):
                 q = p + span
                 log_ratio[p, span] = np.log(medians[q] / medians[p])
-                log_bias[p, span] = _travel_time_prior(s, a_all, q)
+                if span > 1:
+                    log_bias[p, span] = np.log(sum(typical[p:q]) / kinematic(p, q))
         return cls(
             log_bias,
             np.full(shape, 0.5),
