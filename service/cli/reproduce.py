@@ -18,7 +18,7 @@ PAPER_PRESETS = ["large", "medium", "small"]
 
 @app.command("reproduce")
 def reproduce_command(
-    seeds: Annotated[int, typer.Option(min=1, help="Simulated data sets per preset.")] = 20,
+    seeds: Annotated[int, typer.Option(min=1, help="Simulated data sets per preset.")] = 100,
     preset: Annotated[
         list[str] | None, typer.Option(help="Preset to run (repeat); default: the paper's three.")
     ] = None,
