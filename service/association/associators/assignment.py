@@ -169,7 +169,8 @@ class AssignmentParams(AssociatorParams):
         default=0.02,
         ge=0,
         description="Timestamp measurement error (std, time units): the least spread of a "
-        "travel time, however short.",
+        "travel time, however short. Held to at most 2% of a typical travel time between "
+        "neighbouring sensors, so the default also suits minutes or hours.",
     )
     em_rounds: int = Field(
         default=3,
@@ -210,7 +211,9 @@ class AssignmentParams(AssociatorParams):
         default=0.5,
         ge=0,
         description="Two reports of one sensor at most this far apart in time (time units) with "
-        "near-equal speed may be one passage reported twice; only one of them joins a track.",
+        "near-equal speed may be one passage reported twice; only one of them joins a track. "
+        "Held to at most a quarter of a typical travel time between neighbouring sensors, so "
+        "the default also suits minutes or hours. 0 disables.",
     )
     duplicate_velocity_tolerance: float = Field(
         default=0.05,
@@ -1201,6 +1204,33 @@ def finish(s: Sensors, model: SegmentModel, params: AssignmentParams, track: Int
     return out
 
 
+# The parameters in time units are held to these shares of a typical travel time between
+# neighbouring sensors.
+DUPLICATE_WINDOW_SHARE = 0.25
+TIMESTAMP_NOISE_SHARE = 0.02
+
+
+def within_time_scale(params: AssignmentParams, s: Sensors) -> AssignmentParams:
+    """The parameters, with those in time units (`duplicate_window`, `timestamp_noise`) held to
+    a share of a typical travel time between neighbouring sensors.
+
+    Units are the caller's. Their defaults (0.5 and 0.02) are seconds-sized; a deployment that
+    times in minutes or hours (positions in km, speeds in km/h) would otherwise take every
+    report within half an hour for a duplicate, and a timestamp error of a minute for noise.
+    With seconds and road traffic the limits are far above the defaults and change nothing."""
+    gaps = np.diff(s.positions)
+    speeds = np.array([_median(s.speed[s.members(k)]) for k in range(s.positions.size)])
+    if gaps.size == 0:
+        return params
+    typical = float(np.median(gaps * 0.5 * (1.0 / speeds[:-1] + 1.0 / speeds[1:])))
+    return params.model_copy(
+        update={
+            "duplicate_window": min(params.duplicate_window, DUPLICATE_WINDOW_SHARE * typical),
+            "timestamp_noise": min(params.timestamp_noise, TIMESTAMP_NOISE_SHARE * typical),
+        }
+    )
+
+
 class AssignmentAssociator(Associator):
     name: ClassVar[str] = "assignment"
     description: ClassVar[str] = (
@@ -1214,8 +1244,8 @@ class AssignmentAssociator(Associator):
     params: AssignmentParams
 
     def group(self, detections: Detections, progress: Progress | None = None) -> IntArray:
-        p = self.params
-        s = arrange(detections, p)
+        s = arrange(detections, self.params)
+        p = within_time_scale(self.params, s)
         max_span = p.max_skip + 1
         prior = SegmentModel.prior(s, max_span, p)
         model = prior
