@@ -55,11 +55,15 @@ def test_paper_presets(name):
     assert mean_accuracy(name, range(100)) >= 0.995
 
 
-def test_missed_detections_and_false_alarms():
-    assert mean_accuracy("medium", range(20), miss_probability=0.05, false_alarm_rate=0.05) >= 0.97
+@pytest.mark.parametrize("name", ["large", "medium", "small"])
+def test_missed_detections_and_false_alarms(name):
+    # Goal: at least 97%. Measured over seeds 0-99: 99.5 / 99.5 / 99.2%.
+    faults = {"miss_probability": 0.05, "false_alarm_rate": 0.05}
+    assert mean_accuracy(name, range(100), **faults) >= 0.97
 
 
 def test_congested_multilane_slow_zone():
+    # Goal: at least 95% with 100+ targets. Measured 97.8% over seeds 0-19 (and over 0-99).
     assert mean_accuracy("congested", range(20)) >= 0.95
 
 
