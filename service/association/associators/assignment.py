@@ -52,6 +52,8 @@ BoolArray = npt.NDArray[np.bool_]
 
 MIN_RELATIVE_SPREAD = 0.01
 REFINE_GATE_FACTOR = 2.0
+# A link's mean speed may exceed the fastest speed measured at its sensors by this factor at most.
+FASTEST_SHARE = 1.5
 # The prior's search for each segment's bias: travel times up to 10x off the kinematic guess,
 # in bins of 5 %, from a sample of this many detections per sensor.
 PRIOR_LOG_RANGE = float(np.log(10.0))
@@ -339,6 +341,7 @@ class Sensors:
     sorted_time: FloatArray
     sorted_inverse_speed: FloatArray
     sorted_log_speed: FloatArray
+    top_speed: FloatArray  # the fastest speed measured at each sensor
 
     def members(self, k: int) -> IntArray:
         return self.order[self.start[k] : self.start[k + 1]]
@@ -369,6 +372,7 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         detections.timestamp[order],
         1.0 / speed[order],
         log_speed[order],
+        np.maximum.reduceat(speed[order], start[:-1]) if order.size else np.zeros(0),
     )
 
 
@@ -667,6 +671,11 @@ def gated_pairs(
     slack = reach * params.timestamp_noise * np.sqrt(2.0)
     t_a = s.time[a]
     lo = t_a + (from_a + to_b * fastest) * np.exp(-reach * relative) - slack
+    # However heavy the tails, no target covers the gap much faster than the fastest speed
+    # either sensor measured: such a link is two targets' detections, never one target's.
+    gap = s.positions[q] - s.positions[p]
+    quickest = gap / (FASTEST_SHARE * np.maximum(s.top_speed[p], s.top_speed[q]))
+    lo = np.maximum(lo, t_a + quickest - slack)
     hi = t_a + (from_a + to_b * slowest) * (1.0 + reach * relative) + slack
     first = np.searchsorted(times, lo, side="left")
     count = np.maximum(np.searchsorted(times, hi, side="right") - first, 0)
