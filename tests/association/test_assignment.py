@@ -380,7 +380,7 @@ def test_parameters_in_time_units_follow_the_callers_time_unit():
 
 
 def test_a_deployment_timing_in_hours_is_grouped_as_well_as_one_timing_in_seconds():
-    # Dense SUMO traffic (committed seed-0 case): 95.4% in seconds; in km, km/h and hours
+    # Dense SUMO traffic (committed seed-0 case): 95.2% in seconds; in km, km/h and hours
     # measured 91.4% (16% when the time-unit parameters kept their seconds-sized defaults).
     committed = Path(__file__).parents[1] / "data" / "sumo" / "sumo-dense.csv"
     d = read_detections_csv(committed.read_text())

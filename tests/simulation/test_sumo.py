@@ -38,10 +38,10 @@ COMMITTED = Path(__file__).parents[1] / "data" / "sumo"
 # them over more seeds), less a margin of 3 points: the test catches a regression, not a wobble.
 MEASURED_ASSIGNMENT_ACCURACY = {
     "sumo-freeflow": 0.992,
-    "sumo-dense": 0.954,
-    "sumo-bottleneck": 0.521,
+    "sumo-dense": 0.952,
+    "sumo-bottleneck": 0.525,
     "sumo-irregular": 0.943,
-    "sumo-faulty": 0.762,
+    "sumo-faulty": 0.760,
 }
 MARGIN = 0.03
 
