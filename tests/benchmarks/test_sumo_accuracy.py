@@ -1,0 +1,40 @@
+"""benchmarks/sumo_accuracy.py: its scenario groups, and that the speed-noise variants add a
+speed error and nothing else."""
+
+import numpy as np
+import pytest
+
+from benchmarks import sumo_accuracy as bench
+from service.simulation.sumo import SUMO_SCENARIOS, DetectorFaults, run_sumo, sumo_available
+
+
+def test_every_scenario_name_belongs_to_one_group():
+    names = [name for group in bench.SCENARIO_GROUPS.values() for name in group]
+    assert len(names) == len(set(names))
+    assert set(bench.SCENARIO_GROUPS["main"]) == set(SUMO_SCENARIOS)
+
+
+def test_the_speed_noise_variants_change_the_speed_error_alone():
+    assert len(bench.SPEED_NOISE) == 6
+    for name, scenario in bench.SPEED_NOISE.items():
+        base_name, _, noise = name.rpartition("-speed")
+        base = SUMO_SCENARIOS[base_name]
+        assert scenario.faults == DetectorFaults(velocity_noise=int(noise) / 100)
+        changed = {
+            field
+            for field in type(scenario).model_fields
+            if getattr(scenario, field) != getattr(base, field)
+        }
+        assert changed == {"faults", "description"}
+
+
+@pytest.mark.skipif(
+    not sumo_available(), reason="Eclipse SUMO is not installed (pip install 'roadlink[sumo]')"
+)
+def test_a_speed_noise_case_is_its_base_case_with_noisy_speeds():
+    base = run_sumo(SUMO_SCENARIOS["sumo-freeflow"], seed=0)
+    noisy = bench.load_case("sumo-freeflow-speed6", 0, data=None, export=None)
+    assert np.array_equal(noisy.timestamp, base.timestamp)
+    assert np.array_equal(noisy.target, base.target)
+    error = np.log(noisy.velocity / base.velocity)
+    assert 0.05 < np.std(error) < 0.07
