@@ -109,6 +109,7 @@ SPEED_NOISE: dict[str, SumoScenario] = {
     for noise in (0.03, 0.06, 0.10)
 }
 SCENARIO_GROUPS = {"main": SUMO_SCENARIOS, "validation": VALIDATION, "speed-noise": SPEED_NOISE}
+EVERY_SCENARIO = {name: case for group in SCENARIO_GROUPS.values() for name, case in group.items()}
 
 
 def case_file(directory: Path, scenario: str, seed: int) -> Path:
@@ -120,8 +121,7 @@ def load_case(scenario: str, seed: int, data: Path | None, export: Path | None) 
     """The detections of one case: from `data` when given, else simulated by SUMO."""
     if data is not None:
         return read_detections_csv(case_file(data, scenario, seed).read_text())
-    known = next(group for group in SCENARIO_GROUPS.values() if scenario in group)
-    detections = run_sumo(known[scenario], seed=seed)
+    detections = run_sumo(EVERY_SCENARIO[scenario], seed=seed)
     if export is not None:
         export.mkdir(parents=True, exist_ok=True)
         case_file(export, scenario, seed).write_text(write_detections_csv(detections))
@@ -178,10 +178,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--scenarios", nargs="+")
-    parser.add_argument(
+    variants = parser.add_mutually_exclusive_group()
+    variants.add_argument(
         "--validation", action="store_true", help="Run the VALIDATION variants instead."
     )
-    parser.add_argument(
+    variants.add_argument(
         "--speed-noise", action="store_true", help="Run the SPEED_NOISE variants instead."
     )
     parser.add_argument("--associators", nargs="+", default=list(ASSOCIATORS))

@@ -266,7 +266,7 @@ class SegmentModel:
         span_axis = np.arange(max_span + 1, dtype=np.float64)
         log_bias = np.zeros(shape)
         log_ratio = np.zeros(shape)
-        medians = np.array([_median(s.speed[s.members(k)]) for k in range(n_sensors)])
+        medians = s.median_speed
         for p in range(n_sensors - 1):
             # A few hundred detections, evenly spread in time, are plenty to find a mode.
             sample = s.members(p)[:: max(1, s.members(p).size // PRIOR_SAMPLE)]
@@ -342,6 +342,7 @@ class Sensors:
     sorted_inverse_speed: FloatArray
     sorted_log_speed: FloatArray
     top_speed: FloatArray  # the fastest speed measured at each sensor
+    median_speed: FloatArray  # the median (floored) speed at each sensor
 
     def members(self, k: int) -> IntArray:
         return self.order[self.start[k] : self.start[k + 1]]
@@ -373,6 +374,7 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         1.0 / speed[order],
         log_speed[order],
         np.maximum.reduceat(speed[order], start[:-1]) if order.size else np.zeros(0),
+        np.array([_median(speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]),
     )
 
 
@@ -1228,7 +1230,7 @@ def within_time_scale(params: AssignmentParams, s: Sensors) -> AssignmentParams:
     report within half an hour for a duplicate, and a timestamp error of a minute for noise.
     With seconds and road traffic the limits are far above the defaults and change nothing."""
     gaps = np.diff(s.positions)
-    speeds = np.array([_median(s.speed[s.members(k)]) for k in range(s.positions.size)])
+    speeds = s.median_speed
     if gaps.size == 0:
         return params
     typical = float(np.median(gaps * 0.5 * (1.0 / speeds[:-1] + 1.0 / speeds[1:])))
