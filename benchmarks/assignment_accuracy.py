@@ -2,7 +2,7 @@
 
 Each case is simulated with seeds 0 .. N-1 and grouped with the default parameters; the table
 gives the mean, the standard deviation and the worst seed's accuracy (the paper's figure, see
-service/association/metrics.py). Writes benchmarks/results/assignment_accuracy.json.
+service/roadlink/association/metrics.py). Writes benchmarks/results/assignment_accuracy.json.
 
     python benchmarks/assignment_accuracy.py --seeds 20
 """
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service.association import associate
-from service.simulation import preset, simulate
+from roadlink.association import associate
+from roadlink.simulation import preset, simulate
 
 RESULTS = Path(__file__).parent / "results" / "assignment_accuracy.json"
 FAULTS: dict[str, object] = {"miss_probability": 0.05, "false_alarm_rate": 0.05}

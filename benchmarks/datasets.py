@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service.association.detections import Detections
-from service.simulation import SimulationConfig, preset, simulate
+from roadlink.association.detections import Detections
+from roadlink.simulation import SimulationConfig, preset, simulate
 
 CACHE = Path(__file__).resolve().parent / ".cache"
 SENSORS = 50

@@ -23,11 +23,11 @@ from typing import Any
 
 import httpx
 
-from service.association.detections import Detections
-from service.db.apikeys import create_api_key
-from service.db.engine import make_engine, make_session_factory, transaction
-from service.db.migrate import upgrade_to_head
-from service.db.models import ApiKeyScope
+from roadlink.association.detections import Detections
+from roadlink.db.apikeys import create_api_key
+from roadlink.db.engine import make_engine, make_session_factory, transaction
+from roadlink.db.migrate import upgrade_to_head
+from roadlink.db.models import ApiKeyScope
 
 READY_TIMEOUT_SECONDS = 90.0
 REQUEST_TIMEOUT_SECONDS = 300.0
@@ -101,7 +101,7 @@ def live_service(
             argv += ["--workers", str(workers)]
         log = (workdir / "serve.log").open("w")
         process = subprocess.Popen(
-            [sys.executable, "-m", "service.cli", *argv],
+            [sys.executable, "-m", "roadlink.cli", *argv],
             cwd=workdir,
             env=env,
             stdout=log,

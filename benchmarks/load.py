@@ -29,11 +29,11 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from service.association.csvio import write_detections_csv
-from service.db.apikeys import create_api_key
-from service.db.engine import make_engine, make_session_factory, transaction
-from service.db.models import ApiKeyScope
-from service.simulation import preset, simulate
+from roadlink.association.csvio import write_detections_csv
+from roadlink.db.apikeys import create_api_key
+from roadlink.db.engine import make_engine, make_session_factory, transaction
+from roadlink.db.models import ApiKeyScope
+from roadlink.simulation import preset, simulate
 
 
 def _free_port() -> int:
@@ -44,7 +44,7 @@ def _free_port() -> int:
 
 def _roadlink(*argv: str, env: dict[str, str], cwd: Path) -> str:
     done = subprocess.run(
-        [sys.executable, "-m", "service.cli", *argv],
+        [sys.executable, "-m", "roadlink.cli", *argv],
         cwd=cwd,
         env=env,
         capture_output=True,
@@ -90,7 +90,7 @@ def run_load(gateways: int, seconds: float) -> dict[str, float | int | str]:
     url = f"http://127.0.0.1:{port}"
     log = (directory / "serve.log").open("wb")
     server = subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", "0"],
+        [sys.executable, "-m", "roadlink.cli", "serve", "--port", str(port), "--workers", "0"],
         cwd=directory,
         env=env,
         stdout=log,

@@ -12,9 +12,9 @@ import argparse
 
 import numpy as np
 
-from service.association.detections import FloatArray
-from service.association.localisation import build_track
-from service.simulation import preset, simulate
+from roadlink.association.detections import FloatArray
+from roadlink.association.localisation import build_track
+from roadlink.simulation import preset, simulate
 
 
 def interpolation_errors(

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from service.association.associators import ASSOCIATORS
-from service.association.detections import Detections, IntArray
+from roadlink.association.associators import ASSOCIATORS
+from roadlink.association.detections import Detections, IntArray
 
 STONESOUP_GNN = "stonesoup-gnn"
 """Stone Soup's GNN tracker (benchmarks.stonesoup_gnn), the peer roadlink is compared with."""
@@ -24,7 +24,7 @@ def grouping_method(name: str) -> Callable[[Detections], IntArray]:
     """A function from (labelled) detections to groups, as the method would be used.
 
     Unsupervised associators and the tracker see the detections without labels; supervised ones
-    see the labels, as `service.association.pipeline.associate` arranges.
+    see the labels, as `roadlink.association.pipeline.associate` arranges.
     """
     if name == STONESOUP_GNN:
         from benchmarks.stonesoup_gnn import track_groups

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service.association.csvio import read_detections_csv
-from service.association.detections import CLUTTER, Detections, FloatArray, IntArray
+from roadlink.association.csvio import read_detections_csv
+from roadlink.association.detections import CLUTTER, Detections, FloatArray, IntArray
 
 CASE = Path(__file__).parents[1] / "tests" / "data" / "sumo" / "sumo-bottleneck.csv"
 FIGURE = Path(__file__).parents[1] / "docs" / "img" / "queue_travel_times.png"

@@ -39,15 +39,15 @@ from typing import Any
 from sqlalchemy import func, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.association.associators import DEFAULT_ASSOCIATOR
-from service.db import repository
-from service.db.engine import make_engine, make_session_factory, transaction
-from service.db.migrate import upgrade_to_head
-from service.db.models import Job
-from service.queue import enqueue_job
-from service.queue.worker import run_worker_process
-from service.settings import Settings
-from service.simulation import preset, simulate
+from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.db import repository
+from roadlink.db.engine import make_engine, make_session_factory, transaction
+from roadlink.db.migrate import upgrade_to_head
+from roadlink.db.models import Job
+from roadlink.queue import enqueue_job
+from roadlink.queue.worker import run_worker_process
+from roadlink.settings import Settings
+from roadlink.simulation import preset, simulate
 
 POSTGRES_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 RESULTS = Path(__file__).resolve().parent / "results" / "scaleout.json"

@@ -57,7 +57,7 @@ from stonesoup.types.track import Track
 from stonesoup.types.update import Update
 from stonesoup.updater.kalman import KalmanUpdater
 
-from service.association.detections import Detections, IntArray
+from roadlink.association.detections import Detections, IntArray
 
 # Stone Soup's clock is a datetime; one metre of road is one second of tracker time.
 ROAD_ORIGIN = datetime.datetime(2000, 1, 1)

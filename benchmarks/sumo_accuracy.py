@@ -1,6 +1,6 @@
 """Accuracy of every registered associator on realistic traffic simulated by Eclipse SUMO.
 
-Each SUMO scenario (service/simulation/sumo.py) is simulated with seeds 0 .. N-1 and every
+Each SUMO scenario (service/roadlink/simulation/sumo.py) is simulated with seeds 0 .. N-1 and every
 associator in the registry groups it with its default parameters; supervised ones (the SVMs) are
 given the labels and scored out of fold, as the paper did. The table gives the mean, the standard
 deviation and the worst seed's accuracy; a run longer than `--timeout` seconds is stopped and
@@ -31,11 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from service.association import associate
-from service.association.associators import ASSOCIATORS
-from service.association.csvio import read_detections_csv, write_detections_csv
-from service.association.detections import CLUTTER, Detections
-from service.simulation.sumo import (
+from roadlink.association import associate
+from roadlink.association.associators import ASSOCIATORS
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.association.detections import CLUTTER, Detections
+from roadlink.simulation.sumo import (
     SUMO_SCENARIOS,
     Bottleneck,
     DetectorFaults,

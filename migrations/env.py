@@ -1,4 +1,4 @@
-"""Alembic environment: the target schema is service.db.models; the URL comes from the config
+"""Alembic environment: the target schema is roadlink.db.models; the URL comes from the config
 (set by `roadlink migrate`), `-x url=...`, or ROADLINK_DATABASE_URL."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ from logging.config import fileConfig
 from alembic import context
 from sqlalchemy import pool, text
 
-from service.db.engine import make_engine
-from service.db.models import Base
-from service.settings import Settings
+from roadlink.db.engine import make_engine
+from roadlink.db.models import Base
+from roadlink.settings import Settings
 
 # Any constant shared by every roadlink process: the advisory lock serialising migrations.
 LOCK_KEY = 0x726F61646C696E6B  # "roadlink"

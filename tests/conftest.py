@@ -13,13 +13,13 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
-from service.api import create_app
-from service.db.apikeys import create_api_key
-from service.db.engine import make_engine, make_session_factory, transaction
-from service.db.migrate import upgrade_to_head
-from service.db.models import ApiKeyScope
-from service.queue.worker import Worker
-from service.settings import Settings
+from roadlink.api import create_app
+from roadlink.db.apikeys import create_api_key
+from roadlink.db.engine import make_engine, make_session_factory, transaction
+from roadlink.db.migrate import upgrade_to_head
+from roadlink.db.models import ApiKeyScope
+from roadlink.queue.worker import Worker
+from roadlink.settings import Settings
 
 POSTGRES_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 TABLES_CHILD_FIRST = (

@@ -24,7 +24,7 @@ def free_port() -> int:
 def roadlink(*argv: str, env: Mapping[str, str], cwd: Path) -> str:
     """Run a roadlink command to completion; its stdout."""
     done = subprocess.run(
-        [sys.executable, "-m", "service.cli", *argv],
+        [sys.executable, "-m", "roadlink.cli", *argv],
         cwd=cwd,
         env={**os.environ, **env},
         capture_output=True,
@@ -58,7 +58,7 @@ class LiveServer:
             [
                 sys.executable,
                 "-m",
-                "service.cli",
+                "roadlink.cli",
                 "serve",
                 "--port",
                 str(self.port),

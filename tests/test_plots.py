@@ -8,11 +8,11 @@ import matplotlib as mpl
 import numpy as np
 import pytest
 
-from service.association import associate
-from service.association.metrics import wrongly_grouped
-from service.association.result import build_result
-from service.plots import DPI, FIGURE_SIZE, LEGEND_LIMIT, PLOT_KINDS, plot_figure, render_plot
-from service.simulation import preset, simulate
+from roadlink.association import associate
+from roadlink.association.metrics import wrongly_grouped
+from roadlink.association.result import build_result
+from roadlink.plots import DPI, FIGURE_SIZE, LEGEND_LIMIT, PLOT_KINDS, plot_figure, render_plot
+from roadlink.simulation import preset, simulate
 
 SVG = "{http://www.w3.org/2000/svg}"
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from benchmarks.datasets import SENSORS, cached_dataset, scaled_config, targets_for
 from benchmarks.isolated import IsolatedRun, RunSpec, run_isolated
 from benchmarks.report import Cell, Column, Sample, Section, Table
-from service.association.associators import ASSOCIATORS
+from roadlink.association.associators import ASSOCIATORS
 
 NAME = "associators"
 

@@ -27,9 +27,9 @@ import orjson
 from benchmarks.datasets import cached_dataset, load_detections, scaled_config, targets_for
 from benchmarks.live_service import checked, create_deployment, json_batch, live_service
 from benchmarks.report import Column, Sample, Section, Table
-from service.association.csvio import write_detections_csv
-from service.association.detections import Detections
-from service.db.migrate import upgrade_to_head
+from roadlink.association.csvio import write_detections_csv
+from roadlink.association.detections import Detections
+from roadlink.db.migrate import upgrade_to_head
 
 NAME = "ingest"
 GOAL_SHARE = 0.40

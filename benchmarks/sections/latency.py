@@ -17,8 +17,8 @@ import orjson
 
 from benchmarks.live_service import checked, create_deployment, json_batch, live_service
 from benchmarks.report import Column, Sample, Section, Table
-from service.association.associators import DEFAULT_ASSOCIATOR
-from service.simulation import preset, simulate
+from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.simulation import preset, simulate
 
 NAME = "latency"
 GOAL_P50_SECONDS = 0.050

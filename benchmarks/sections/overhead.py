@@ -1,6 +1,6 @@
 """Overhead: a 10,000-detection job through a real `roadlink serve`, end to end (post the batch
 with `associate`, read the result with `?wait=`), divided by the in-process library call
-(`service.association.associate`) on the same detections with the same associator.
+(`roadlink.association.associate`) on the same detections with the same associator.
 
 Goal: at most 1.5. The two are interleaved, repeat by repeat, so that both see the same load.
 """
@@ -15,8 +15,8 @@ import orjson
 from benchmarks.datasets import cached_dataset, load_detections, scaled_config, targets_for
 from benchmarks.live_service import checked, create_deployment, json_batch, live_service
 from benchmarks.report import Column, Sample, Section, Table
-from service.association import associate
-from service.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.association import associate
+from roadlink.association.associators import DEFAULT_ASSOCIATOR
 
 NAME = "overhead"
 GOAL_RATIO = 1.5
@@ -108,7 +108,7 @@ def run(quick: bool) -> Section:
     return Section(
         NAME,
         "The service's cost on top of the association itself: a job end to end over HTTP "
-        "(`roadlink serve`, SQLite), divided by `service.association.associate` on the same "
+        "(`roadlink serve`, SQLite), divided by `roadlink.association.associate` on the same "
         f"detections in this process. Median [min, max] of {plan.repeats} interleaved repeats.",
         tables=[table],
         settings={

@@ -14,9 +14,9 @@ from benchmarks.datasets import SENSORS
 from benchmarks.methods import STONESOUP_GNN, grouping_method, stonesoup_available
 from benchmarks.report import Column, Sample, Section, Table
 from benchmarks.sections.associators import ScalingPlan, measure_scaling
-from service.association.associators import DEFAULT_ASSOCIATOR
-from service.association.metrics import score_grouping
-from service.simulation import preset, simulate
+from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.association.metrics import score_grouping
+from roadlink.simulation import preset, simulate
 
 NAME = "peer"
 PRESETS = ("large", "medium", "small", "congested")

@@ -18,8 +18,8 @@ import orjson
 from benchmarks.live_service import checked, create_deployment, json_batch, live_service
 from benchmarks.report import Column, Sample, Section, Table
 from benchmarks.scaleout import fresh_database, postgres_answers
-from service.association.associators import DEFAULT_ASSOCIATOR
-from service.simulation import preset, simulate
+from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.simulation import preset, simulate
 
 NAME = "throughput"
 WORKER_COUNTS = (1, 2)

@@ -10,12 +10,12 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from service.association.csvio import write_detections_csv
-from service.association.detections import Detections
-from service.db.apikeys import create_api_key
-from service.db.engine import make_session_factory, transaction
-from service.db.models import ApiKeyScope
-from service.simulation import preset, simulate
+from roadlink.association.csvio import write_detections_csv
+from roadlink.association.detections import Detections
+from roadlink.db.apikeys import create_api_key
+from roadlink.db.engine import make_session_factory, transaction
+from roadlink.db.models import ApiKeyScope
+from roadlink.simulation import preset, simulate
 
 
 @pytest.fixture

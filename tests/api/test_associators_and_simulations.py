@@ -6,8 +6,8 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from service.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR
-from service.queue.worker import Worker
+from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR
+from roadlink.queue.worker import Worker
 from tests.api.conftest import assert_problem
 
 

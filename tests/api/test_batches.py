@@ -8,8 +8,8 @@ from typing import Any
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, func, select
 
-from service.association.detections import Detections
-from service.db.models import Batch, Detection, Job
+from roadlink.association.detections import Detections
+from roadlink.db.models import Batch, Detection, Job
 from tests.api.conftest import assert_problem, detection_rows
 
 

@@ -7,9 +7,9 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from service.api import create_app
-from service.queue.worker import Worker
-from service.settings import Settings
+from roadlink.api import create_app
+from roadlink.queue.worker import Worker
+from roadlink.settings import Settings
 from tests.api.conftest import assert_problem
 
 

@@ -13,13 +13,13 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, update
 
-from service.api import create_app
-from service.api.pagelinks import token_key
-from service.db.apikeys import find_api_key, revoke_api_key
-from service.db.engine import make_session_factory, transaction
-from service.db.models import Job
-from service.queue.worker import Worker
-from service.settings import Settings
+from roadlink.api import create_app
+from roadlink.api.pagelinks import token_key
+from roadlink.db.apikeys import find_api_key, revoke_api_key
+from roadlink.db.engine import make_session_factory, transaction
+from roadlink.db.models import Job
+from roadlink.queue.worker import Worker
+from roadlink.settings import Settings
 from tests.api.conftest import MakeKey
 from tests.security.conftest import bearer
 

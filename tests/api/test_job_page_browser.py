@@ -14,8 +14,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from service.association.csvio import write_detections_csv
-from service.simulation import preset, simulate
+from roadlink.association.csvio import write_detections_csv
+from roadlink.simulation import preset, simulate
 from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 
 pytestmark = pytest.mark.slow

@@ -13,9 +13,9 @@ import pytest
 from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
-from service.association.associators import DEFAULT_ASSOCIATOR
-from service.cli import app as cli
-from service.queue.worker import Worker
+from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.cli import app as cli
+from roadlink.queue.worker import Worker
 from tests.api.conftest import assert_problem
 
 

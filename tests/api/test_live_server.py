@@ -15,9 +15,9 @@ from typing import NamedTuple
 import httpx
 import pytest
 
-from service.association import associate
-from service.association.csvio import read_detections_csv, write_detections_csv
-from service.simulation import preset, simulate
+from roadlink.association import associate
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.simulation import preset, simulate
 from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 
 pytestmark = pytest.mark.slow

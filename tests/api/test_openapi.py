@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from service.api.app import create_app, openapi_json
-from service.settings import Settings
+from roadlink.api.app import create_app, openapi_json
+from roadlink.settings import Settings
 
 SPEC = Path(__file__).resolve().parents[2] / "openapi" / "openapi.json"
 REGENERATE = "run `roadlink openapi` (writes openapi/openapi.json) and commit the result"

@@ -14,15 +14,15 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from service.api.jobresults import JobResultCache
-from service.association import associate
-from service.association.csvio import read_detections_csv
-from service.association.localisation import positions_at, target_trajectory
-from service.association.metrics import wrongly_grouped
-from service.association.result import AssociationResult
-from service.db import repository
-from service.db.engine import make_session_factory
-from service.queue.worker import Worker
+from roadlink.api.jobresults import JobResultCache
+from roadlink.association import associate
+from roadlink.association.csvio import read_detections_csv
+from roadlink.association.localisation import positions_at, target_trajectory
+from roadlink.association.metrics import wrongly_grouped
+from roadlink.association.result import AssociationResult
+from roadlink.db import repository
+from roadlink.db.engine import make_session_factory
+from roadlink.queue.worker import Worker
 from tests.api.conftest import MakeKey, assert_problem
 from tests.security.conftest import bearer
 

@@ -11,9 +11,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from service.api.routers import jobs as jobs_router
-from service.association.associators import ASSOCIATORS
-from service.queue.worker import Worker
+from roadlink.api.routers import jobs as jobs_router
+from roadlink.association.associators import ASSOCIATORS
+from roadlink.queue.worker import Worker
 from tests.queue.associators_for_tests import SleepingAssociator
 
 # With polling this slow, only a notification can end the wait before the job's 60 s timeout.

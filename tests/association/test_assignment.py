@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.association import Detections, associate
-from service.association.associators import DEFAULT_ASSOCIATOR
-from service.association.associators.assignment import (
+from roadlink.association import Detections, associate
+from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.association.associators.assignment import (
     AssignmentAssociator,
     AssignmentParams,
     SegmentModel,
@@ -24,9 +24,9 @@ from service.association.associators.assignment import (
     match,
     within_time_scale,
 )
-from service.association.csvio import read_detections_csv
-from service.association.detections import concatenate
-from service.simulation import SlowZone, preset, simulate
+from roadlink.association.csvio import read_detections_csv
+from roadlink.association.detections import concatenate
+from roadlink.simulation import SlowZone, preset, simulate
 
 
 def mean_accuracy(name: str, seeds: range, **overrides: object) -> float:
@@ -230,7 +230,7 @@ def test_sparse_matching_terminates_on_a_block_that_made_lapjvsp_cycle():
     data = Path(__file__).parents[1] / "data" / "lapjvsp_cycle.npz"
     script = (
         "import numpy as np, sys\n"
-        "from service.association.associators.assignment import _match_block\n"
+        "from roadlink.association.associators.assignment import _match_block\n"
         "z = np.load(sys.argv[1])\n"
         "left, right = _match_block(z['left'], z['right'], z['cost'], float(z['alone']))\n"
         "print(left.size, np.unique(left).size, np.unique(right).size)\n"

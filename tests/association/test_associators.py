@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from service.association import DetectionError, Detections, associate
-from service.association.associators import ASSOCIATORS, AssociationError
-from service.association.associators.kmeans import estimate_target_count, kmeanspp_centres
-from service.association.backprojection import backprojected_features
-from service.simulation import preset, simulate
+from roadlink.association import DetectionError, Detections, associate
+from roadlink.association.associators import ASSOCIATORS, AssociationError
+from roadlink.association.associators.kmeans import estimate_target_count, kmeanspp_centres
+from roadlink.association.backprojection import backprojected_features
+from roadlink.simulation import preset, simulate
 
 ALL = sorted(ASSOCIATORS)
 PAPER = ["kmeans", "kmeans++", "svm-linear", "svm-quadratic"]

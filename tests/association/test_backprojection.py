@@ -2,12 +2,12 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from service.association.backprojection import (
+from roadlink.association.backprojection import (
     backproject_times,
     backprojected_features,
     recover_times,
 )
-from service.association.detections import Detections
+from roadlink.association.detections import Detections
 
 
 def test_the_papers_worked_example():

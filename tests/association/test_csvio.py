@@ -1,8 +1,8 @@
 import pytest
 
-from service.association import DetectionError, associate
-from service.association.csvio import read_detections_csv, write_detections_csv
-from service.simulation import preset, simulate
+from roadlink.association import DetectionError, associate
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.simulation import preset, simulate
 
 
 def test_round_trip_keeps_every_column():

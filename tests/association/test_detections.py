@@ -3,9 +3,9 @@ import math
 import numpy as np
 import pytest
 
-from service.association import associate
-from service.association.associators import AssociationError
-from service.association.detections import DetectionError, Detections, concatenate
+from roadlink.association import associate
+from roadlink.association.associators import AssociationError
+from roadlink.association.detections import DetectionError, Detections, concatenate
 
 
 def make(**overrides):

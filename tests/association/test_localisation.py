@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from service.association.detections import Detections
-from service.association.localisation import (
+from roadlink.association.detections import Detections
+from roadlink.association.localisation import (
     MAX_SAMPLES,
     build_track,
     positions_at,
@@ -17,8 +17,8 @@ from service.association.localisation import (
     target_tracks,
     target_trajectory,
 )
-from service.association.result import build_result
-from service.simulation import preset, simulate
+from roadlink.association.result import build_result
+from roadlink.simulation import preset, simulate
 
 
 def detections(times, positions, velocities, ids=None):

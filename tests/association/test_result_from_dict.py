@@ -6,10 +6,10 @@ import json
 
 import numpy as np
 
-from service.association import associate
-from service.association.metrics import wrongly_grouped
-from service.association.result import result_from_dict
-from service.simulation import preset, simulate
+from roadlink.association import associate
+from roadlink.association.metrics import wrongly_grouped
+from roadlink.association.result import result_from_dict
+from roadlink.simulation import preset, simulate
 
 
 def test_the_document_round_trips_and_the_labels_score_it_again() -> None:

@@ -3,7 +3,7 @@
 import numpy as np
 
 from benchmarks import queue_travel_times as study
-from service.association.csvio import read_detections_csv
+from roadlink.association.csvio import read_detections_csv
 
 
 def test_the_clock_predicts_queued_travel_times_and_the_speeds_free_flowing_ones():

@@ -13,7 +13,7 @@ from benchmarks import datasets
 from benchmarks.live_service import checked, create_deployment, live_service
 from benchmarks.report import Section
 from benchmarks.sections import ingest, latency, overhead, throughput
-from service.simulation import preset, simulate
+from roadlink.simulation import preset, simulate
 
 
 @pytest.fixture(autouse=True)

@@ -6,8 +6,8 @@ import pytest
 pytest.importorskip("stonesoup", reason="Stone Soup (the bench extra) is absent")
 
 from benchmarks.stonesoup_gnn import sensor_scans, track_groups
-from service.association.metrics import score_grouping
-from service.simulation import preset, simulate
+from roadlink.association.metrics import score_grouping
+from roadlink.simulation import preset, simulate
 
 
 def test_constant_speed_targets_are_tracked_perfectly():

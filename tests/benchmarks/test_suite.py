@@ -15,7 +15,7 @@ from benchmarks.methods import stonesoup_available
 from benchmarks.report import Column, Sample, Section, Table, format_cell
 from benchmarks.sections import SECTIONS, peer
 from benchmarks.sections.associators import ScalingPlan, measure_scaling
-from service.simulation import simulate
+from roadlink.simulation import simulate
 
 TINY = ScalingPlan(sizes=(100, 200), time_limit=60.0, repeats=3, budget_seconds=0.0)
 

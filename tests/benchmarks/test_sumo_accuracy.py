@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from benchmarks import sumo_accuracy as bench
-from service.simulation.sumo import SUMO_SCENARIOS, DetectorFaults, run_sumo, sumo_available
+from roadlink.simulation.sumo import SUMO_SCENARIOS, DetectorFaults, run_sumo, sumo_available
 
 
 def test_every_scenario_name_belongs_to_one_group():

@@ -5,10 +5,10 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from service.association import associate
-from service.association.associators import ASSOCIATORS
-from service.association.csvio import read_detections_csv
-from service.cli import app
+from roadlink.association import associate
+from roadlink.association.associators import ASSOCIATORS
+from roadlink.association.csvio import read_detections_csv
+from roadlink.cli import app
 
 runner = CliRunner()
 

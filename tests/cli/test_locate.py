@@ -5,11 +5,11 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from service.association import associate
-from service.association.associators import DEFAULT_ASSOCIATOR
-from service.association.csvio import read_detections_csv
-from service.association.localisation import positions_at, target_trajectory
-from service.cli import app
+from roadlink.association import associate
+from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.association.csvio import read_detections_csv
+from roadlink.association.localisation import positions_at, target_trajectory
+from roadlink.cli import app
 
 runner = CliRunner()
 

@@ -10,9 +10,14 @@ from alembic import command
 from alembic.config import Config
 from sqlalchemy import inspect
 
-from service.db.engine import make_engine
-from service.db.migrate import alembic_config, current_revision, head_revision, migrations_directory
-from service.db.models import Base
+from roadlink.db.engine import make_engine
+from roadlink.db.migrate import (
+    alembic_config,
+    current_revision,
+    head_revision,
+    migrations_directory,
+)
+from roadlink.db.models import Base
 from tests.conftest import BACKENDS
 
 REPO = Path(__file__).resolve().parents[2]

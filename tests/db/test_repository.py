@@ -6,11 +6,11 @@ import uuid
 
 from sqlalchemy import Engine
 
-from service.association.csvio import read_detections_csv, write_detections_csv
-from service.association.detections import Detections
-from service.db import repository
-from service.db.engine import make_session_factory, transaction
-from service.simulation import preset, simulate
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.association.detections import Detections
+from roadlink.db import repository
+from roadlink.db.engine import make_session_factory, transaction
+from roadlink.simulation import preset, simulate
 
 
 def _store(engine: Engine, *batches: Detections) -> tuple[uuid.UUID, list[uuid.UUID]]:

@@ -16,7 +16,7 @@ from typing import Any
 import yaml
 from typer.testing import CliRunner
 
-from service.cli import app
+from roadlink.cli import app
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DOCKERFILE = REPO_ROOT / "Dockerfile"

@@ -17,7 +17,7 @@ import jsonschema
 import pytest
 from typer.testing import CliRunner
 
-from service.cli import app
+from roadlink.cli import app
 from tests.deploy.deploy_files import (
     OPENAPI_SPEC,
     ROADLINK_SERVICES,

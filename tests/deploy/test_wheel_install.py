@@ -28,8 +28,8 @@ from typing import Any
 import httpx
 import pytest
 
-from service.association import associate
-from service.simulation import preset, simulate
+from roadlink.association import associate
+from roadlink.simulation import preset, simulate
 from tests.deploy.deploy_files import (
     MIGRATIONS_DIR,
     REPO_ROOT,
@@ -105,7 +105,7 @@ def test_wheel_carries_the_migrations_and_the_command(clean_install):
     with zipfile.ZipFile(clean_install.wheel) as wheel:
         names = set(wheel.namelist())
         (entry_points,) = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
-        assert "roadlink = service.cli:app" in wheel.read(entry_points).decode()
+        assert "roadlink = roadlink.cli:app" in wheel.read(entry_points).decode()
     migrations = (
         sorted(
             path.relative_to(MIGRATIONS_DIR).as_posix()
@@ -117,7 +117,7 @@ def test_wheel_carries_the_migrations_and_the_command(clean_install):
     )
     if not migrations:
         pytest.skip("migrations/ holds no files in this checkout yet (the REST service adds them)")
-    missing = [m for m in migrations if f"service/_migrations/{m}" not in names]
+    missing = [m for m in migrations if f"roadlink/_migrations/{m}" not in names]
     assert not missing, f"pyproject's force-include left these out of the wheel: {missing}"
 
 

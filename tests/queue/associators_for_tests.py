@@ -10,8 +10,8 @@ import time
 import numpy as np
 from pydantic import Field
 
-from service.association.associators import ASSOCIATORS, Associator, AssociatorParams, Progress
-from service.association.detections import Detections, IntArray
+from roadlink.association.associators import ASSOCIATORS, Associator, AssociatorParams, Progress
+from roadlink.association.detections import Detections, IntArray
 
 
 class SleepingParams(AssociatorParams):

@@ -9,11 +9,11 @@ import pytest
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.association.detections import Detections
-from service.db import repository
-from service.db.engine import make_session_factory, transaction
-from service.queue import enqueue_job
-from service.simulation import preset, simulate
+from roadlink.association.detections import Detections
+from roadlink.db import repository
+from roadlink.db.engine import make_session_factory, transaction
+from roadlink.queue import enqueue_job
+from roadlink.simulation import preset, simulate
 
 EnqueueJob = Callable[..., uuid.UUID]
 

@@ -7,8 +7,8 @@ import uuid
 
 import pytest
 
-from service.queue import doorbell
-from service.queue.wakeup import FinishedJobs, PollingWakeup
+from roadlink.queue import doorbell
+from roadlink.queue.wakeup import FinishedJobs, PollingWakeup
 
 
 @pytest.fixture

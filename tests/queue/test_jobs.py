@@ -9,12 +9,12 @@ from datetime import timedelta
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.association import associate
-from service.association.detections import Detections
-from service.db import repository
-from service.db.engine import transaction
-from service.db.models import JobState, utcnow
-from service.queue import (
+from roadlink.association import associate
+from roadlink.association.detections import Detections
+from roadlink.db import repository
+from roadlink.db.engine import transaction
+from roadlink.db.models import JobState, utcnow
+from roadlink.queue import (
     ClaimedJob,
     cancel_job,
     claim_next_job,

@@ -11,19 +11,19 @@ import pytest
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.association import associate
-from service.association.detections import Detections
-from service.db import repository
-from service.db.engine import transaction
-from service.queue import claim_next_job, complete_job, enqueue_job
-from service.queue.jobs import (
+from roadlink.association import associate
+from roadlink.association.detections import Detections
+from roadlink.db import repository
+from roadlink.db.engine import transaction
+from roadlink.queue import claim_next_job, complete_job, enqueue_job
+from roadlink.queue.jobs import (
     FINISHED_CHANNEL,
     NOTIFY_CHANNEL,
     local_enqueue_signal,
     subscribe_local_finishes,
     unsubscribe_local_finishes,
 )
-from service.queue.wakeup import libpq_conninfo
+from roadlink.queue.wakeup import libpq_conninfo
 
 
 class Rollback(Exception):

@@ -24,15 +24,15 @@ from typing import Any
 import pytest
 from sqlalchemy import func, select, text
 
-from service.db import repository
-from service.db.engine import make_engine, make_session_factory, transaction
-from service.db.migrate import upgrade_to_head
-from service.db.models import Job, JobResult
-from service.queue import enqueue_job
-from service.queue.jobs import NOTIFY_CHANNEL
-from service.queue.worker import run_worker_process
-from service.settings import Settings
-from service.simulation import preset, simulate
+from roadlink.db import repository
+from roadlink.db.engine import make_engine, make_session_factory, transaction
+from roadlink.db.migrate import upgrade_to_head
+from roadlink.db.models import Job, JobResult
+from roadlink.queue import enqueue_job
+from roadlink.queue.jobs import NOTIFY_CHANNEL
+from roadlink.queue.worker import run_worker_process
+from roadlink.settings import Settings
+from roadlink.simulation import preset, simulate
 from tests.conftest import create_postgres_database, drop_postgres_database, postgres_answers
 from tests.queue import associators_for_tests
 

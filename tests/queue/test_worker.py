@@ -15,12 +15,12 @@ import pytest
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.association import associate
-from service.association.detections import Detections
-from service.db import repository
-from service.db.models import Job
-from service.queue.worker import Worker
-from service.settings import Settings
+from roadlink.association import associate
+from roadlink.association.detections import Detections
+from roadlink.db import repository
+from roadlink.db.models import Job
+from roadlink.queue.worker import Worker
+from roadlink.settings import Settings
 from tests.queue import associators_for_tests
 from tests.queue.conftest import EnqueueJob
 
@@ -42,7 +42,7 @@ def _wait_for(condition: Any, timeout: float = 10.0) -> None:
 @pytest.fixture(autouse=True)
 def test_associators(monkeypatch: pytest.MonkeyPatch) -> None:
     """The test-only associators, known to the worker's associator process (forked later)."""
-    from service.association.associators import ASSOCIATORS
+    from roadlink.association.associators import ASSOCIATORS
 
     for cls in (associators_for_tests.SleepingAssociator, associators_for_tests.CrashingAssociator):
         monkeypatch.setitem(ASSOCIATORS, cls.name, cls)
@@ -101,8 +101,8 @@ def test_progress_is_reported_and_a_cancelled_job_stops(
     sessions: sessionmaker[Session],
     enqueue: EnqueueJob,
 ) -> None:
-    from service.db.engine import transaction
-    from service.queue import cancel_job
+    from roadlink.db.engine import transaction
+    from roadlink.queue import cancel_job
 
     job_id = enqueue("test-sleeping", SLOW)
     runner = threading.Thread(target=worker.run_once)

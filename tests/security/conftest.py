@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from sqlalchemy import Engine, func, select
 
-from service.db.models import Base
+from roadlink.db.models import Base
 
 # The API tests' data fixtures: the paper's large scenario, as detections and as CSV.
 from tests.api.conftest import MakeKey, deployment, make_key, paper_batch, paper_csv  # noqa: F401

@@ -13,14 +13,14 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 from typer.testing import CliRunner
 
-from service.api import create_app
-from service.api.auth import POLICY, check_policy_covers
-from service.api.ratelimit import TokenBuckets
-from service.association.csvio import write_detections_csv
-from service.association.detections import Detections
-from service.cli import app as cli
-from service.db.apikeys import key_sha256
-from service.settings import Settings
+from roadlink.api import create_app
+from roadlink.api.auth import POLICY, check_policy_covers
+from roadlink.api.ratelimit import TokenBuckets
+from roadlink.association.csvio import write_detections_csv
+from roadlink.association.detections import Detections
+from roadlink.cli import app as cli
+from roadlink.db.apikeys import key_sha256
+from roadlink.settings import Settings
 from tests.api.conftest import assert_problem
 from tests.security.conftest import MakeKey, bearer
 

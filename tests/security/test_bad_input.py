@@ -12,7 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from service.association.detections import Detections
+from roadlink.association.detections import Detections
 from tests.api.conftest import assert_problem, detection_rows
 from tests.security.conftest import row_counts
 
@@ -180,7 +180,7 @@ def declared(client: TestClient) -> dict[str, Any]:
 def test_every_bad_request_is_a_useful_4xx_and_changes_nothing(
     client: TestClient, engine: Engine, declared: dict[str, Any], paper_batch: Detections
 ) -> None:
-    from service.association.csvio import write_detections_csv
+    from roadlink.association.csvio import write_detections_csv
 
     rows = detection_rows(paper_batch)
     csv = write_detections_csv(paper_batch)
@@ -246,8 +246,8 @@ def test_a_chunked_body_past_the_limit_is_413_on_every_kind_of_route(
 def test_too_many_detections_in_one_batch_is_422_naming_the_setting(
     settings: Any, engine: Engine, admin_key: str, paper_batch: Detections
 ) -> None:
-    from service.api import create_app
-    from service.association.csvio import write_detections_csv
+    from roadlink.api import create_app
+    from roadlink.association.csvio import write_detections_csv
 
     small = settings.model_copy(update={"max_batch_detections": 50})
     with TestClient(

@@ -13,8 +13,8 @@ import httpx
 import numpy as np
 import pytest
 
-from service.association.csvio import write_detections_csv
-from service.simulation import preset, simulate
+from roadlink.association.csvio import write_detections_csv
+from roadlink.simulation import preset, simulate
 from tests.security.conftest import LiveServer, bearer, roadlink
 
 pytestmark = pytest.mark.slow

@@ -9,10 +9,10 @@ from typing import Any
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, select, update
 
-from service.api.idempotency import forget_expired_keys
-from service.db.engine import make_session_factory
-from service.db.models import Batch, JobIdempotencyKey, utcnow
-from service.settings import Settings
+from roadlink.api.idempotency import forget_expired_keys
+from roadlink.db.engine import make_session_factory
+from roadlink.db.models import Batch, JobIdempotencyKey, utcnow
+from roadlink.settings import Settings
 from tests.api.conftest import assert_problem
 from tests.security.conftest import MakeKey, bearer, row_counts
 

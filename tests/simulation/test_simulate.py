@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from service.association.detections import CLUTTER
-from service.simulation import PRESETS, SimulationConfig, SlowZone, preset, simulate
+from roadlink.association.detections import CLUTTER
+from roadlink.simulation import PRESETS, SimulationConfig, SlowZone, preset, simulate
 
 
 def per_target(d):

@@ -12,12 +12,12 @@ import pytest
 from pydantic import ValidationError
 from typer.testing import CliRunner
 
-from service.association import associate
-from service.association.csvio import read_detections_csv
-from service.association.detections import CLUTTER, Detections
-from service.cli import app
-from service.simulation import sumo
-from service.simulation.sumo import (
+from roadlink.association import associate
+from roadlink.association.csvio import read_detections_csv
+from roadlink.association.detections import CLUTTER, Detections
+from roadlink.cli import app
+from roadlink.simulation import sumo
+from roadlink.simulation.sumo import (
     SUMO_SCENARIOS,
     Bottleneck,
     DetectorFaults,

@@ -1,5 +1,0 @@
-"""The REST API: a FastAPI app factory, one router per resource."""
-
-from service.api.app import create_app
-
-__all__ = ["create_app"]

@@ -1,0 +1,171 @@
+"""Errors as RFC 9457 problem details (application/problem+json), naming the field and row."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from http import HTTPStatus
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, ConfigDict, Field
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from roadlink.association.detections import Problem
+
+PROBLEM_MEDIA_TYPE = "application/problem+json"
+TITLES = {413: "Content Too Large", 422: "Unprocessable Content"}
+
+
+class ProblemItem(BaseModel):
+    """One thing wrong with the request: where it is and what is wrong."""
+
+    row: int | None = Field(
+        default=None, description="1-based data row (detection) at fault, when one is."
+    )
+    field: str | None = Field(default=None, description="Field or column at fault, when one is.")
+    pointer: str | None = Field(
+        default=None, description="JSON Pointer (RFC 6901) into the request body, when JSON."
+    )
+    message: str = Field(description="What is wrong, in words a person can act on.")
+
+
+class ProblemDetail(BaseModel):
+    """An error response (RFC 9457)."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "type": "about:blank",
+                    "title": "Unprocessable Content",
+                    "status": 422,
+                    "detail": "2 detections are invalid",
+                    "errors": [
+                        {
+                            "row": 3,
+                            "field": "velocity",
+                            "pointer": "/detections/2/velocity",
+                            "message": "must be > 0, got -4.0",
+                        }
+                    ],
+                }
+            ]
+        }
+    )
+
+    type: str = Field(default="about:blank", description="URI of the problem type.")
+    title: str = Field(description="Short summary of the problem type (the HTTP reason).")
+    status: int = Field(description="HTTP status code.")
+    detail: str = Field(description="What happened here, and what to do about it.")
+    instance: str | None = Field(default=None, description="The request path.")
+    errors: list[ProblemItem] = Field(
+        default_factory=list, description="Each thing wrong, with its row and field."
+    )
+
+
+class ApiProblem(Exception):
+    """Raised anywhere in a request to answer with problem details."""
+
+    def __init__(
+        self,
+        status: int,
+        detail: str,
+        *,
+        errors: Sequence[ProblemItem] = (),
+        headers: dict[str, str] | None = None,
+    ) -> None:
+        super().__init__(detail)
+        self.status = status
+        self.detail = detail
+        self.errors = list(errors)
+        self.headers = headers
+
+
+def problem_response(
+    request: Request,
+    status: int,
+    detail: str,
+    errors: Sequence[ProblemItem] = (),
+    headers: Mapping[str, str] | None = None,
+) -> JSONResponse:
+    """The problem+json response for `status`."""
+    body = ProblemDetail(
+        title=status_title(status),
+        status=status,
+        detail=detail,
+        instance=request.url.path,
+        errors=list(errors),
+    )
+    return JSONResponse(
+        body.model_dump(mode="json"),
+        status_code=status,
+        media_type=PROBLEM_MEDIA_TYPE,
+        headers=dict(headers) if headers else None,
+    )
+
+
+def problems_from_detections(
+    problems: Sequence[Problem], *, json_prefix: str | None = None
+) -> list[ProblemItem]:
+    """The core's validation problems as problem items; with a JSON body, pointers too."""
+    items = []
+    for p in problems:
+        pointer = None
+        if json_prefix is not None and p.row is not None:
+            pointer = f"{json_prefix}/{p.row - 1}" + (f"/{p.field}" if p.field else "")
+        items.append(ProblemItem(row=p.row, field=p.field, pointer=pointer, message=p.message))
+    return items
+
+
+def _validation_items(errors: Sequence[Any]) -> list[ProblemItem]:
+    items = []
+    for error in errors:
+        field: str | None
+        location = [str(part) for part in error.get("loc", ()) if part != "body"]
+        if location and location[0] in ("query", "path", "header"):
+            field = ".".join(location[1:]) or location[0]
+            pointer = None
+        else:
+            field = ".".join(location) or None
+            pointer = "/" + "/".join(location) if location else None
+        items.append(ProblemItem(field=field, pointer=pointer, message=error.get("msg", "invalid")))
+    return items
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """Every error the app answers, in the one problem+json shape."""
+
+    @app.exception_handler(ApiProblem)
+    async def _api_problem(request: Request, exc: ApiProblem) -> JSONResponse:
+        return problem_response(request, exc.status, exc.detail, exc.errors, exc.headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
+        items = _validation_items(exc.errors())
+        detail = "; ".join(f"{i.field or 'body'}: {i.message}" for i in items[:5])
+        return problem_response(request, 422, f"the request is invalid: {detail}", items)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        detail = exc.detail if isinstance(exc.detail, str) else HTTPStatus(exc.status_code).phrase
+        return problem_response(request, exc.status_code, detail, headers=exc.headers)
+
+
+def problem_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI `responses` entries for error statuses, all problem details."""
+    return {
+        status: {
+            "description": status_title(status),
+            "content": {
+                PROBLEM_MEDIA_TYPE: {"schema": {"$ref": "#/components/schemas/ProblemDetail"}}
+            },
+        }
+        for status in statuses
+    }
+
+
+def status_title(status: int) -> str:
+    """The reason phrase of RFC 9110 (which renamed 413 and 422)."""
+    return TITLES.get(status) or HTTPStatus(status).phrase

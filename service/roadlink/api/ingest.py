@@ -1,0 +1,213 @@
+"""Turning a batch upload (JSON or CSV) into validated detections, or a problem naming the row.
+
+The body is parsed once and validated once, by the core (`Detections.from_columns`,
+`read_csv_columns`): the API adds nothing to what a valid detection is, except a deployment's
+declared sensors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import orjson
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from roadlink.api.errors import ApiProblem, ProblemItem, problems_from_detections
+from roadlink.api.schemas import AssociateRequest
+from roadlink.association.csvio import read_csv_columns
+from roadlink.association.detections import DetectionError, Detections, Problem
+
+DETECTION_FIELDS = ("position", "velocity", "timestamp", "sensor_id", "detection_id", "target")
+REQUIRED_FIELDS = ("position", "velocity", "timestamp")
+
+
+class _Envelope(BaseModel):
+    """The JSON batch without its detections' contents (those the core validates)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    detections: list[dict[str, Any]]
+    associate: AssociateRequest | None = None
+
+
+def parse_json_batch(
+    body: bytes, sensors: list[dict[str, Any]] | None
+) -> tuple[Detections, AssociateRequest | None]:
+    """A JSON batch body into detections and the association it asks for."""
+    try:
+        document = orjson.loads(body)
+    except orjson.JSONDecodeError as exc:
+        raise ApiProblem(400, f"the body is not valid JSON: {exc}") from None
+    try:
+        envelope = _Envelope.model_validate(document)
+    except ValidationError as exc:
+        shape = [
+            ProblemItem(
+                field=".".join(str(p) for p in e["loc"]) or None,
+                pointer="/" + "/".join(str(p) for p in e["loc"]),
+                message=e["msg"],
+            )
+            for e in exc.errors()[:50]
+        ]
+        raise ApiProblem(422, "the batch is not of the documented shape", errors=shape) from None
+    rows = envelope.detections
+    if not rows:
+        raise ApiProblem(
+            422,
+            "the batch has no detections",
+            errors=[ProblemItem(field="detections", pointer="/detections", message="is empty")],
+        )
+    columns = {name: [row.get(name) for row in rows] for name in DETECTION_FIELDS}
+    if not _well_formed(rows, columns):
+        items = _shape_problems(rows)
+        if items:
+            raise ApiProblem(422, _count(items), errors=items)
+    with_sensors = _fill_declared_sensors(columns, sensors, json_body=True)
+    return validate_columns(with_sensors, "/detections"), envelope.associate
+
+
+def _well_formed(rows: list[dict[str, Any]], columns: dict[str, list[Any]]) -> bool:
+    """True when no row has an unknown field, lacks a required one or has a text field that is
+    not text: the common case, checked column by column at C speed (the row-by-row check
+    that names each problem runs only when this is false)."""
+    known = frozenset(DETECTION_FIELDS)
+    return (
+        all(map(known.issuperset, rows))
+        and not any(None in columns[name] for name in REQUIRED_FIELDS)
+        and all(set(map(type, columns[name])) <= {str, type(None)} for name in DETECTION_FIELDS[3:])
+    )
+
+
+def _shape_problems(rows: list[dict[str, Any]]) -> list[ProblemItem]:
+    """The problems (the first hundred) of rows that are not well formed, each named."""
+    items: list[ProblemItem] = []
+    for i, row in enumerate(rows):
+        for name in row.keys() - DETECTION_FIELDS:
+            items.append(_row_item(i, name, f"unknown field; known: {', '.join(DETECTION_FIELDS)}"))
+        for name in REQUIRED_FIELDS:
+            if row.get(name) is None:
+                items.append(_row_item(i, name, "is required"))
+        for name in DETECTION_FIELDS[3:]:
+            value = row.get(name)
+            if value is not None and not isinstance(value, str):
+                items.append(_row_item(i, name, f"must be a string, got {value!r}"))
+        if len(items) >= 100:
+            break
+    return items
+
+
+def parse_csv_batch(body: bytes, sensors: list[dict[str, Any]] | None) -> Detections:
+    """A detection CSV body (design.md's format) into detections."""
+    try:
+        text = body.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ApiProblem(400, f"the CSV is not UTF-8 text: {exc}") from None
+    try:
+        columns = read_csv_columns(text)
+    except DetectionError as exc:
+        raise ApiProblem(
+            422, _count(exc.problems), errors=problems_from_detections(exc.problems)
+        ) from None
+    # Declared sensors are checked against the sensor ids as written in the file, not as the
+    # core would generate them from position rank.
+    return validate_columns(_fill_declared_sensors(columns, sensors, json_body=False), None)
+
+
+def validate_columns(columns: dict[str, Any], json_prefix: str | None) -> Detections:
+    """The core's validation of raw columns, as problem details."""
+    try:
+        return Detections.from_columns(**columns)
+    except DetectionError as exc:
+        raise ApiProblem(
+            422,
+            _count(exc.problems),
+            errors=problems_from_detections(exc.problems, json_prefix=json_prefix),
+        ) from None
+
+
+def _fill_declared_sensors(
+    columns: dict[str, Any], sensors: list[dict[str, Any]] | None, *, json_body: bool
+) -> dict[str, Any]:
+    """With declared sensors: every detection must name a declared sensor at its position, and
+    a detection without a sensor id takes the one declared at its position."""
+    if sensors is None:
+        return columns
+    by_id = {s["sensor_id"]: float(s["position"]) for s in sensors}
+    by_position = {float(s["position"]): s["sensor_id"] for s in sensors}
+    positions = columns["position"]
+    given = columns["sensor_id"] or [None] * len(positions)
+    filled: list[str | None] = []
+    items: list[ProblemItem] = []
+    for i, (sensor, position) in enumerate(zip(given, positions, strict=True)):
+        number = _as_float(position)
+        if sensor is None:
+            name = by_position.get(number) if number is not None else None
+            if name is None and number is not None:
+                items.append(
+                    _row_item(
+                        i,
+                        "position",
+                        f"no declared sensor is at position {number:g} and no sensor_id is given",
+                        json_body,
+                    )
+                )
+            filled.append(name)
+        elif sensor not in by_id:
+            items.append(
+                _row_item(
+                    i,
+                    "sensor_id",
+                    f"unknown sensor '{sensor}'; this deployment declares: "
+                    + ", ".join(sorted(by_id)),
+                    json_body,
+                )
+            )
+            filled.append(sensor)
+        else:
+            if number is not None and number != by_id[sensor]:
+                items.append(
+                    _row_item(
+                        i,
+                        "position",
+                        f"sensor '{sensor}' is declared at position {by_id[sensor]:g}, "
+                        f"not {number:g}",
+                        json_body,
+                    )
+                )
+            filled.append(sensor)
+        if len(items) >= 100:
+            break
+    if items:
+        raise ApiProblem(422, _count(items), errors=items)
+    return {**columns, "sensor_id": filled}
+
+
+def _as_float(value: object) -> float | None:
+    if isinstance(value, bool) or value is None:
+        return None
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
+    return number if np.isfinite(number) else None
+
+
+def _row_item(index: int, field: str, message: str, json_body: bool = True) -> ProblemItem:
+    pointer = f"/detections/{index}/{field}" if json_body else None
+    return ProblemItem(row=index + 1, field=field, pointer=pointer, message=message)
+
+
+def _count(items: Sequence[ProblemItem | Problem]) -> str:
+    """A one-line summary: how many detections are invalid, and the first problem."""
+    rows = {i.row for i in items if i.row is not None}
+    first = min(items, key=lambda i: (i.row is None, i.row or 0))
+    where = f"field '{first.field}': " if first.field else ""
+    if not rows:
+        return "; ".join(
+            f"field '{i.field}': {i.message}" if i.field else i.message for i in items[:5]
+        )
+    count = f"{len(rows)} detection is" if len(rows) == 1 else f"{len(rows)} detections are"
+    row = f"row {first.row}, " if first.row is not None else ""
+    return f"{count} invalid; the first: {row}{where}{first.message}"

@@ -1,0 +1,137 @@
+"""A succeeded job's result as the core's `AssociationResult`, for every route that draws or
+localises it (plot, positions, targets, the job page), rebuilt once per job and kept.
+
+A succeeded job's result never changes, so what is derived from it (the result itself, the
+targets' tracks, the rendered plots) is computed on first use and cached in the API process,
+least recently used first out, within a budget of detections.
+"""
+
+from __future__ import annotations
+
+import threading
+import uuid
+from collections import OrderedDict
+from collections.abc import Callable
+from functools import cached_property
+from typing import Annotated
+
+from fastapi import Depends, Request
+from sqlalchemy.orm import Session
+
+from roadlink.api.deps import SessionDep
+from roadlink.api.errors import ApiProblem
+from roadlink.association.localisation import Track, target_tracks
+from roadlink.association.result import AssociationResult
+from roadlink.db import repository
+from roadlink.db.models import Job, JobState
+from roadlink.plots import render_plot
+
+CACHE_DETECTIONS = 500_000
+"""Detections the cache may hold across jobs (a few hundred bytes each, with their tracks);
+the most recent result is kept whatever its size."""
+
+
+class CachedResult:
+    """One succeeded job's result, and what is derived from it, each computed once."""
+
+    def __init__(self, job_id: uuid.UUID, result: AssociationResult) -> None:
+        self.job_id = job_id
+        self.result = result
+        self._plots: dict[tuple[str, str], bytes] = {}
+        self._plots_lock = threading.Lock()
+
+    @cached_property
+    def tracks(self) -> list[Track]:
+        """Every target's track, in target order (T1 first)."""
+        return target_tracks(self.result)
+
+    def plot(self, kind: str, fmt: str) -> bytes:
+        """The plot of the result (see `roadlink.plots.render_plot`), rendered once per kind and
+        format."""
+        key = (kind, fmt)
+        with self._plots_lock:
+            cached = self._plots.get(key)
+        if cached is not None:
+            return cached
+        # Rendered outside the lock: two first requests may both render, which is harmless and
+        # keeps a slow plot from blocking the other kinds.
+        image = render_plot(self.result, kind, fmt)
+        with self._plots_lock:
+            return self._plots.setdefault(key, image)
+
+
+class JobResultCache:
+    """Succeeded jobs' results by job id, least recently used first out."""
+
+    def __init__(self, max_detections: int = CACHE_DETECTIONS) -> None:
+        self.max_detections = max_detections
+        self._entries: OrderedDict[uuid.UUID, CachedResult] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(
+        self, job_id: uuid.UUID, load: Callable[[], AssociationResult | None]
+    ) -> CachedResult | None:
+        """The cached result of `job_id`, or `load()`'s (cached when not None)."""
+        with self._lock:
+            entry = self._entries.get(job_id)
+            if entry is not None:
+                self._entries.move_to_end(job_id)
+                return entry
+        result = load()
+        if result is None:
+            return None
+        with self._lock:
+            entry = self._entries.setdefault(job_id, CachedResult(job_id, result))
+            self._entries.move_to_end(job_id)
+            held = sum(len(e.result.detections) for e in self._entries.values())
+            while held > self.max_detections and len(self._entries) > 1:
+                _, dropped = self._entries.popitem(last=False)
+                held -= len(dropped.result.detections)
+            return entry
+
+
+def job_result(session: Session, cache: JobResultCache, job_id: uuid.UUID) -> CachedResult:
+    """The result of a succeeded job; 404 for an unknown job, 409 for an unfinished one."""
+
+    def load() -> AssociationResult | None:
+        job = repository.get_job(session, job_id=job_id)
+        if job is None:
+            raise ApiProblem(404, f"there is no job {job_id}")
+        if job.state != JobState.SUCCEEDED.value:
+            raise ApiProblem(409, unfinished_detail(job))
+        return repository.load_job_association(session, job=job)
+
+    entry = cache.get(job_id, load)
+    if entry is None:  # succeeded without a result cannot happen: both commit together
+        raise ApiProblem(500, f"job {job_id} succeeded but its result is missing")
+    return entry
+
+
+def unfinished_detail(job: Job) -> str:
+    """Why a job has no result (yet), for a 409."""
+    if job.state == JobState.FAILED.value:
+        return f"job {job.id} failed, so it has no result: {job.error}"
+    if job.state == JobState.CANCELLED.value:
+        return f"job {job.id} was cancelled, so it has no result"
+    return (
+        f"job {job.id} is {job.state} ({job.progress:.0%} done); ask again later, "
+        "or add ?wait=SECONDS to wait for it"
+    )
+
+
+def get_job_result_cache(request: Request) -> JobResultCache:
+    """The app's cache of succeeded jobs' results."""
+    cache: JobResultCache = request.app.state.job_results
+    return cache
+
+
+def get_succeeded_job_result(
+    job_id: uuid.UUID,
+    session: SessionDep,
+    cache: Annotated[JobResultCache, Depends(get_job_result_cache)],
+) -> CachedResult:
+    """The `job_id` path parameter's result (404 / 409 as `job_result`)."""
+    return job_result(session, cache, job_id)
+
+
+SucceededJobDep = Annotated[CachedResult, Depends(get_succeeded_job_result)]

@@ -1,0 +1,231 @@
+"""Batches: uploads of detections, as JSON or CSV, optionally associated at once."""
+
+from __future__ import annotations
+
+import hashlib
+import uuid
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Header, Query, Request, Response
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
+
+from roadlink.api.deps import SessionDep, SettingsDep
+from roadlink.api.errors import ApiProblem, ProblemItem, problem_responses
+from roadlink.api.ingest import parse_csv_batch, parse_json_batch
+from roadlink.api.routers.deployments import require_deployment
+from roadlink.api.schemas import AssociateRequest, BatchRead, JobRead
+from roadlink.association import parse_params
+from roadlink.association.associators import AssociationError
+from roadlink.association.detections import Detections
+from roadlink.db import repository
+from roadlink.db.models import Batch
+from roadlink.queue.jobs import enqueue_job
+from roadlink.settings import Settings
+
+router = APIRouter(tags=["batches"])
+
+CSV_EXAMPLE = (
+    "position,velocity,timestamp,sensor_id,detection_id,target\n"
+    "0.0,41.2,3.1,S1,d1,A1\n"
+    "100.0,40.7,5.5,S2,d2,A1\n"
+)
+
+BATCH_REQUEST_BODY: dict[str, Any] = {
+    "required": True,
+    "content": {
+        "application/json": {"schema": {"$ref": "#/components/schemas/BatchCreate"}},
+        "text/csv": {
+            "schema": {"type": "string"},
+            "example": CSV_EXAMPLE,
+        },
+    },
+}
+
+
+@router.post(
+    "/v1/deployments/{deployment_id}/batches",
+    name="create",
+    status_code=201,
+    response_model=BatchRead,
+    responses=problem_responses(400, 404, 413, 415, 422),
+    openapi_extra={"requestBody": BATCH_REQUEST_BODY},
+    summary="Upload a batch of detections",
+)
+async def create_batch(
+    deployment_id: uuid.UUID,
+    request: Request,
+    response: Response,
+    session: SessionDep,
+    settings: SettingsDep,
+    idempotency_key: Annotated[
+        str | None,
+        Header(
+            alias="Idempotency-Key",
+            max_length=200,
+            description="Makes retries safe: a repeated request with the same key returns the "
+            "original batch; the same key with a different body is an error (422).",
+        ),
+    ] = None,
+    associator: Annotated[
+        str | None,
+        Query(
+            description="With a CSV body: enqueue a job with this associator (its default "
+            "parameters) in the same transaction. JSON bodies use `associate` instead."
+        ),
+    ] = None,
+) -> BatchRead:
+    """Store detections (JSON `BatchCreate`, or the detection CSV as `text/csv`).
+
+    The batch is validated as a whole: if any detection is invalid nothing is stored, and the
+    problem details name each row and field at fault. With `associate` in the JSON body (or the
+    `associator` query parameter with CSV), the batch's job is enqueued in the same transaction.
+    """
+    body = await request.body()
+    content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if content_type not in ("application/json", "text/csv"):
+        raise ApiProblem(
+            415,
+            f"send the batch as application/json or text/csv, not '{content_type or 'nothing'}'",
+        )
+    if not body.strip():
+        raise ApiProblem(400, "the request body is empty: send detections as JSON or CSV")
+    digest = hashlib.sha256(content_type.encode() + b"\0" + body).hexdigest()
+
+    def work(session: Session) -> tuple[BatchRead, bool]:
+        deployment = require_deployment(session, deployment_id)
+        if idempotency_key is not None:
+            earlier = repository.find_batch_by_idempotency_key(
+                session, deployment_id=deployment_id, idempotency_key=idempotency_key
+            )
+            if earlier is not None:
+                return replay(session, earlier, digest), True
+        if content_type == "text/csv":
+            detections = parse_csv_batch(body, deployment.sensors)
+            associate = AssociateRequest(associator=associator) if associator else None
+            source = "csv"
+        else:
+            detections, associate = parse_json_batch(body, deployment.sensors)
+            source = "json"
+        if len(detections) > settings.max_batch_detections:
+            raise ApiProblem(
+                422,
+                f"the batch has {len(detections)} detections, more than the "
+                f"{settings.max_batch_detections} one batch may hold "
+                "(ROADLINK_MAX_BATCH_DETECTIONS); split it into smaller batches",
+                errors=[ProblemItem(field="detections", message="too many detections")],
+            )
+        batch = store_batch(
+            session,
+            settings=settings,
+            deployment_id=deployment_id,
+            detections=detections,
+            source=source,
+            associate=associate,
+            idempotency_key=idempotency_key,
+            request_sha256=digest,
+        )
+        try:
+            session.commit()
+        except IntegrityError:
+            # A concurrent request with the same Idempotency-Key committed first.
+            session.rollback()
+            if idempotency_key is None:
+                raise
+            earlier = repository.find_batch_by_idempotency_key(
+                session, deployment_id=deployment_id, idempotency_key=idempotency_key
+            )
+            if earlier is None:
+                raise
+            return replay(session, earlier, digest), True
+        return read_batch(session, batch), False
+
+    result, replayed = await run_in_threadpool(work, session)
+    if replayed:
+        response.headers["Idempotent-Replayed"] = "true"
+    return result
+
+
+@router.get(
+    "/v1/batches/{batch_id}",
+    name="get",
+    response_model=BatchRead,
+    responses=problem_responses(404, 422),
+    summary="Get a batch",
+)
+def get_batch(batch_id: uuid.UUID, session: SessionDep) -> BatchRead:
+    """A stored batch and the job enqueued with it, if any."""
+    batch = repository.get_batch(session, batch_id=batch_id)
+    if batch is None:
+        raise ApiProblem(404, f"there is no batch {batch_id}")
+    return read_batch(session, batch)
+
+
+def replay(session: Session, batch: Batch, digest: str) -> BatchRead:
+    """The original answer to a repeated request, or 422 if the key came with another body."""
+    if batch.request_sha256 != digest:
+        raise ApiProblem(
+            422,
+            f"Idempotency-Key '{batch.idempotency_key}' was used for a different request "
+            f"(batch {batch.id}); use a new key for new detections",
+            errors=[ProblemItem(field="Idempotency-Key", message="reused with a different body")],
+        )
+    return read_batch(session, batch)
+
+
+def read_batch(session: Session, batch: Batch) -> BatchRead:
+    """The batch with its job."""
+    read = BatchRead.model_validate(batch)
+    if batch.job_id is not None:
+        job = repository.get_job(session, job_id=batch.job_id)
+        read.job = None if job is None else JobRead.model_validate(job)
+    return read
+
+
+def checked_associate(associate: AssociateRequest) -> dict[str, Any]:
+    """The associator's parameters, validated now so a bad request fails before it is queued."""
+    try:
+        return parse_params(associate.associator, associate.params).model_dump(mode="json")
+    except AssociationError as exc:
+        field = "associator" if "unknown associator" in str(exc) else "params"
+        raise ApiProblem(
+            422, str(exc), errors=[ProblemItem(field=f"associate.{field}", message=str(exc))]
+        ) from None
+
+
+def store_batch(
+    session: Session,
+    *,
+    settings: Settings,
+    deployment_id: uuid.UUID,
+    detections: Detections,
+    source: str,
+    associate: AssociateRequest | None,
+    idempotency_key: str | None = None,
+    request_sha256: str | None = None,
+) -> Batch:
+    """Insert the batch and, when asked, its job, in the caller's transaction."""
+    batch_id = uuid.uuid4()
+    job_id = None
+    if associate is not None:
+        params = checked_associate(associate)
+        job = enqueue_job(
+            session,
+            deployment_id=deployment_id,
+            selection={"batch_ids": [str(batch_id)]},
+            associator=associate.associator,
+            params=params,
+            max_attempts=settings.max_attempts,
+        )
+        job_id = job.id
+    return repository.insert_batch(
+        session,
+        batch_id=batch_id,
+        deployment_id=deployment_id,
+        detections=detections,
+        source=source,
+        idempotency_key=idempotency_key,
+        request_sha256=request_sha256,
+        job_id=job_id,
+    )

@@ -1,0 +1,70 @@
+"""Deployments: stretches of road and their sensors."""
+
+from __future__ import annotations
+
+import uuid
+
+from fastapi import APIRouter, Query
+
+from roadlink.api.deps import SessionDep
+from roadlink.api.errors import ApiProblem, problem_responses
+from roadlink.api.schemas import DeploymentCreate, DeploymentRead
+from roadlink.db import repository
+from roadlink.db.models import Deployment
+
+router = APIRouter(prefix="/v1/deployments", tags=["deployments"])
+
+
+@router.post(
+    "",
+    name="create",
+    status_code=201,
+    response_model=DeploymentRead,
+    responses=problem_responses(413, 422),
+    summary="Create a deployment",
+)
+def create_deployment(body: DeploymentCreate, session: SessionDep) -> DeploymentRead:
+    """A stretch of road. Declare its sensors to have detections of unknown sensors rejected."""
+    sensors = None
+    if body.sensors:
+        sensors = [s.model_dump() for s in sorted(body.sensors, key=lambda s: s.position)]
+    deployment = repository.create_deployment(session, name=body.name, sensors=sensors)
+    session.commit()
+    return DeploymentRead.model_validate(deployment)
+
+
+@router.get(
+    "",
+    name="list",
+    response_model=list[DeploymentRead],
+    responses=problem_responses(422),
+    summary="List deployments",
+)
+def list_deployments(
+    session: SessionDep,
+    limit: int = Query(default=100, ge=1, le=1000, description="Page size."),
+    offset: int = Query(default=0, ge=0, le=2**31 - 1, description="Deployments to skip."),
+) -> list[DeploymentRead]:
+    """Deployments, oldest first."""
+    found = repository.list_deployments(session, limit=limit, offset=offset)
+    return [DeploymentRead.model_validate(d) for d in found]
+
+
+@router.get(
+    "/{deployment_id}",
+    name="get",
+    response_model=DeploymentRead,
+    responses=problem_responses(404, 422),
+    summary="Get a deployment",
+)
+def get_deployment(deployment_id: uuid.UUID, session: SessionDep) -> DeploymentRead:
+    """One deployment."""
+    return DeploymentRead.model_validate(require_deployment(session, deployment_id))
+
+
+def require_deployment(session: SessionDep, deployment_id: uuid.UUID) -> Deployment:
+    """The deployment, or 404 naming it."""
+    deployment = repository.get_deployment(session, deployment_id=deployment_id)
+    if deployment is None:
+        raise ApiProblem(404, f"there is no deployment {deployment_id}")
+    return deployment

@@ -1,0 +1,451 @@
+"""Jobs: associations run by the workers, their progress and their results."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+import uuid
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager, suppress
+from dataclasses import asdict
+from datetime import UTC, datetime
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, FastAPI, Path, Query, Request, Response
+from sqlalchemy.orm import Session, sessionmaker
+from starlette.concurrency import run_in_threadpool
+
+from roadlink.api.auth import principal_of
+from roadlink.api.deps import SessionDep, SessionFactoryDep, SettingsDep
+from roadlink.api.errors import ApiProblem, ProblemItem, problem_responses
+from roadlink.api.idempotency import IdempotencyKeyHeader, commit_job, replayed_job, request_sha256
+from roadlink.api.jobresults import SucceededJobDep, unfinished_detail
+from roadlink.api.pagelinks import DEFAULT_LIFETIME_SECONDS, MAX_LIFETIME_SECONDS, page_token
+from roadlink.api.routers.batches import checked_associate
+from roadlink.api.schemas import (
+    AssociateRequest,
+    AssociationResultRead,
+    JobCreate,
+    JobRead,
+    PageLinkRead,
+    PositionsRead,
+    TargetPositionRead,
+    TargetTrajectoryRead,
+)
+from roadlink.association.localisation import positions_at, target_index, target_trajectory
+from roadlink.db import repository
+from roadlink.db.models import ApiKey, Job, JobState
+from roadlink.plots import PlotFormat, PlotKind
+from roadlink.queue.jobs import cancel_job, enqueue_job
+from roadlink.queue.wakeup import FinishedJobs
+
+
+@asynccontextmanager
+async def _listen_for_finished_jobs(app: FastAPI) -> AsyncIterator[None]:
+    finished = FinishedJobs(app.state.settings.database_url)
+    finished.start()
+    app.state.finished_jobs = finished
+    try:
+        yield
+    finally:
+        finished.close()
+
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"], lifespan=_listen_for_finished_jobs)
+
+# A waiting result request is woken by the job's finish notification (PostgreSQL, or a worker in
+# this process); it also re-reads the job, often at first and backing off to the maximum, which
+# is all it has when no notification can reach it (SQLite workers in other processes).
+WAIT_FIRST_POLL_SECONDS = 0.02
+WAIT_MAX_POLL_SECONDS = 0.25
+# While notifications are heard, re-reading only covers one lost in a reconnection.
+WAIT_LISTENING_POLL_SECONDS = 2.0
+
+MATRIX_CSV_EXAMPLE = (
+    "target,S1_detection_id,S1_velocity,S1_timestamp,S2_detection_id,S2_velocity,S2_timestamp\n"
+    "T1,d1,30.2,12.4,d2,30.5,15.7\n"
+)
+
+
+@router.post(
+    "",
+    name="create",
+    status_code=202,
+    response_model=JobRead,
+    responses=problem_responses(404, 413, 422),
+    summary="Enqueue an association job",
+)
+def create_job(
+    body: JobCreate,
+    request: Request,
+    response: Response,
+    session: SessionDep,
+    settings: SettingsDep,
+    idempotency_key: IdempotencyKeyHeader = None,
+) -> JobRead:
+    """Associate one batch, several batches of one deployment, or a deployment's detections in
+    the time window [start, end) (either end may be left open). With an Idempotency-Key, a retry
+    returns the job the first request created."""
+    principal, digest = principal_of(request).id, request_sha256(body)
+    if idempotency_key is not None:
+        earlier = replayed_job(
+            session,
+            principal=principal,
+            idempotency_key=idempotency_key,
+            digest=digest,
+            response=response,
+        )
+        if earlier is not None:
+            return earlier
+    params = checked_associate(AssociateRequest(associator=body.associator, params=body.params))
+    selection: dict[str, Any]
+    if body.deployment_id is not None:
+        deployment_id = body.deployment_id
+        if repository.get_deployment(session, deployment_id=deployment_id) is None:
+            raise ApiProblem(404, f"there is no deployment {deployment_id}")
+        selection = {"start": body.start, "end": body.end}
+    else:
+        batch_ids = [body.batch_id] if body.batch_id is not None else list(body.batch_ids or [])
+        deployments = set()
+        for k, batch_id in enumerate(batch_ids):
+            batch = repository.get_batch(session, batch_id=batch_id)
+            if batch is None:
+                field = "batch_id" if body.batch_id is not None else f"batch_ids.{k}"
+                raise ApiProblem(
+                    422,
+                    f"there is no batch {batch_id}",
+                    errors=[ProblemItem(field=field, message="no such batch")],
+                )
+            deployments.add(batch.deployment_id)
+        if len(deployments) > 1:
+            raise ApiProblem(
+                422,
+                "the batches belong to different deployments; a job covers one deployment",
+                errors=[ProblemItem(field="batch_ids", message="span several deployments")],
+            )
+        deployment_id = deployments.pop()
+        selection = {"batch_ids": list(dict.fromkeys(str(b) for b in batch_ids))}
+    n, positions = repository.count_selected_detections(
+        session, deployment_id=deployment_id, selection=selection
+    )
+    if n == 0:
+        raise ApiProblem(
+            422,
+            "the job selects no detections: widen the time window or post a batch first",
+            errors=[ProblemItem(field="start", message="the window holds no detections")],
+        )
+    if positions < 2:
+        raise ApiProblem(
+            422,
+            "the job's detections all come from one sensor position; association needs at "
+            "least two: add the batches of the other sensors",
+            errors=[ProblemItem(field="batch_ids", message="one sensor position only")],
+        )
+    job = enqueue_job(
+        session,
+        deployment_id=deployment_id,
+        selection=selection,
+        associator=body.associator,
+        params=params,
+        max_attempts=settings.max_attempts,
+    )
+    replay = commit_job(
+        session,
+        job_id=job.id,
+        principal=principal,
+        idempotency_key=idempotency_key,
+        digest=digest,
+        response=response,
+    )
+    return replay or JobRead.model_validate(job)
+
+
+@router.get(
+    "",
+    name="list",
+    response_model=list[JobRead],
+    responses=problem_responses(422),
+    summary="List jobs",
+)
+def list_jobs(
+    session: SessionDep,
+    deployment_id: uuid.UUID | None = Query(default=None, description="Only this deployment's."),
+    limit: int = Query(default=100, ge=1, le=1000, description="Page size."),
+    offset: int = Query(default=0, ge=0, le=2**31 - 1, description="Jobs to skip."),
+) -> list[JobRead]:
+    """Jobs, newest first."""
+    found = repository.list_jobs(session, deployment_id=deployment_id, limit=limit, offset=offset)
+    return [JobRead.model_validate(j) for j in found]
+
+
+@router.get(
+    "/{job_id}",
+    name="get",
+    response_model=JobRead,
+    responses=problem_responses(404, 422),
+    summary="Get a job's status and progress",
+)
+def get_job(job_id: uuid.UUID, session: SessionDep) -> JobRead:
+    """State (queued, running, succeeded, failed, cancelled), progress and attempts."""
+    return JobRead.model_validate(_require_job(session, job_id))
+
+
+@router.get(
+    "/{job_id}/result",
+    name="get_result",
+    response_model=AssociationResultRead,
+    responses={
+        200: {
+            "description": "The association result (JSON), or with ?format=csv the target x "
+            "sensor matrix.",
+            "content": {"text/csv": {"schema": {"type": "string"}, "example": MATRIX_CSV_EXAMPLE}},
+        },
+        **problem_responses(404, 409, 422),
+    },
+    summary="Get a job's result",
+)
+async def get_result(
+    job_id: uuid.UUID,
+    request: Request,
+    settings: SettingsDep,
+    sessions: SessionFactoryDep,
+    wait: Annotated[
+        float,
+        Query(
+            ge=0,
+            description="Wait up to this many seconds for an unfinished job to finish "
+            "(capped at ROADLINK_MAX_WAIT_SECONDS), so no polling loop is needed.",
+        ),
+    ] = 0.0,
+    format: Annotated[
+        Literal["json", "csv"],
+        Query(description="json: the result document; csv: the target x sensor matrix."),
+    ] = "json",
+) -> Response:
+    """The result of a succeeded job: the same document `roadlink associate --json` prints for
+    the same detections and parameters. 409 while the job is unfinished (or if it failed or was
+    cancelled)."""
+    deadline = time.monotonic() + min(wait, settings.max_wait_seconds)
+    finished_jobs: FinishedJobs | None = getattr(request.app.state, "finished_jobs", None)
+    # Watched before the first read, so that a finish between the read and the wait is heard.
+    finished = None if finished_jobs is None or wait <= 0 else finished_jobs.watch(job_id)
+    try:
+        pause = WAIT_FIRST_POLL_SECONDS
+        while True:
+            job = await run_in_threadpool(_read_job, sessions, job_id)
+            if job is None:
+                raise ApiProblem(404, f"there is no job {job_id}")
+            if JobState(job.state).finished or time.monotonic() >= deadline:
+                break
+            if await request.is_disconnected():
+                raise ApiProblem(408, "the client went away while waiting")
+            timeout = min(pause, max(deadline - time.monotonic(), 0.0))
+            if finished is None:
+                await asyncio.sleep(timeout)
+            else:
+                with suppress(TimeoutError):
+                    await asyncio.wait_for(finished.wait(), timeout)
+                finished.clear()
+            listening = finished_jobs is not None and finished_jobs.listening
+            pause = min(
+                pause * 2, WAIT_LISTENING_POLL_SECONDS if listening else WAIT_MAX_POLL_SECONDS
+            )
+    finally:
+        if finished is not None and finished_jobs is not None:
+            finished_jobs.unwatch(job_id, finished)
+    if job.state != JobState.SUCCEEDED.value:
+        raise ApiProblem(409, unfinished_detail(job))
+    stored = await run_in_threadpool(_read_result, sessions, job_id)
+    if stored is None:  # succeeded without a result cannot happen: both commit together
+        raise ApiProblem(500, f"job {job_id} succeeded but its result is missing")
+    result_json, matrix_csv = stored
+    if format == "csv":
+        return Response(matrix_csv, media_type="text/csv")
+    return Response(result_json, media_type="application/json")
+
+
+PLOT_MEDIA_TYPES = {"png": "image/png", "svg": "image/svg+xml"}
+# A succeeded job's result never changes; it is the caller's own data, so caches stay private.
+RESULT_CACHE_CONTROL = "private, max-age=86400"
+
+
+@router.get(
+    "/{job_id}/plot",
+    name="get_plot",
+    response_class=Response,
+    responses={
+        200: {
+            "description": "The plot, as PNG or SVG.",
+            "content": {
+                "image/png": {"schema": {"type": "string", "format": "binary"}},
+                "image/svg+xml": {"schema": {"type": "string"}},
+            },
+        },
+        **problem_responses(404, 409, 422),
+    },
+    summary="Plot a job's result",
+)
+def get_plot(
+    job: SucceededJobDep,
+    kind: Annotated[
+        PlotKind,
+        Query(
+            description="time-space: position against time, one line per target; "
+            "backprojected: the paper's (t', v) scatter coloured by group."
+        ),
+    ] = "time-space",
+    format: Annotated[PlotFormat, Query(description="png or svg.")] = "png",
+) -> Response:
+    """The plot `roadlink associate --plot` draws for the same detections. When they are
+    labelled, the wrongly grouped ones are ringed in red. In SVG each target is a group with id
+    `target-T<k>`, and the highlights are the groups `unassigned` and `wrongly-grouped`. 409
+    while the job is unfinished."""
+    return Response(
+        job.plot(kind, format),
+        media_type=PLOT_MEDIA_TYPES[format],
+        headers={"Cache-Control": RESULT_CACHE_CONTROL},
+    )
+
+
+@router.get(
+    "/{job_id}/positions",
+    name="get_positions",
+    response_model=PositionsRead,
+    responses=problem_responses(404, 409, 422),
+    summary="Where every target is at a time",
+)
+def get_positions(
+    job: SucceededJobDep,
+    t: Annotated[
+        float, Query(allow_inf_nan=False, description="The time, in the detections' units.")
+    ],
+) -> PositionsRead:
+    """Every target on the observed road at time t (between its first and last sensor pass),
+    with its position and velocity estimated by cubic Hermite interpolation through its passes.
+    Targets before their first or after their last pass are not listed. 409 while the job is
+    unfinished."""
+    return PositionsRead(
+        time=t,
+        targets=[
+            TargetPositionRead(target=p.target, position=p.position, velocity=p.velocity)
+            for p in positions_at(job.tracks, t)
+        ],
+    )
+
+
+@router.get(
+    "/{job_id}/targets/{target}",
+    name="get_target",
+    response_model=TargetTrajectoryRead,
+    responses=problem_responses(404, 409, 422),
+    summary="One target's trajectory, travel times and mean speeds",
+)
+def get_target(
+    job: SucceededJobDep,
+    target: Annotated[str, Path(description="The target as the result names it: T1, T2, ...")],
+    step: Annotated[
+        float | None,
+        Query(
+            gt=0,
+            allow_inf_nan=False,
+            description="Sample the track every `step` time units (default: 100 intervals "
+            "from the first to the last pass; at most 100,000 samples).",
+        ),
+    ] = None,
+) -> TargetTrajectoryRead:
+    """A target's sensor passes, the travel time and mean speed between consecutive sensors,
+    and its track (position and velocity by cubic Hermite interpolation) sampled from its first
+    to its last pass. 404 for a target the result does not have."""
+    try:
+        track = job.tracks[target_index(target, len(job.tracks))]
+    except KeyError as exc:
+        raise ApiProblem(404, f"job {job.job_id} has no target: {exc.args[0]}") from None
+    try:
+        trajectory = target_trajectory(track, step=step)
+    except ValueError as exc:
+        raise ApiProblem(
+            422, str(exc), errors=[ProblemItem(field="step", message=str(exc))]
+        ) from None
+    return TargetTrajectoryRead.model_validate(asdict(trajectory))
+
+
+@router.post(
+    "/{job_id}/page-link",
+    name="create_page_link",
+    status_code=201,
+    response_model=PageLinkRead,
+    responses=problem_responses(404, 422),
+    summary="Make a link to a job's page for a browser",
+)
+def create_page_link(
+    job_id: uuid.UUID,
+    request: Request,
+    session: SessionDep,
+    expires_in: Annotated[
+        int,
+        Query(
+            ge=60,
+            le=MAX_LIFETIME_SECONDS,
+            description="Seconds the link works for (a minute to a week).",
+        ),
+    ] = DEFAULT_LIFETIME_SECONDS,
+) -> PageLinkRead:
+    """A link to the job's page (`/jobs/{job_id}`: status and progress while it runs, then the
+    plot, the metrics and the targets) that opens in a browser without an API key. The link
+    carries a token signed for this job only; it stops working when it expires or when the key
+    that asked for it is revoked. Anyone holding the link can read the page until then, so
+    share it as you would the result."""
+    _require_job(session, job_id)
+    url = str(request.url_for("job_page", job_id=str(job_id)))
+    principal = principal_of(request)
+    key = None if principal.prefix is None else session.get(ApiKey, uuid.UUID(principal.id))
+    if key is None:  # authentication is disabled: the page needs no token
+        return PageLinkRead(url=url, expires_at=None)
+    expires = int(time.time()) + expires_in
+    return PageLinkRead(
+        url=f"{url}?token={page_token(key, job_id, expires)}",
+        expires_at=datetime.fromtimestamp(expires, UTC),
+    )
+
+
+@router.post(
+    "/{job_id}/cancel",
+    name="cancel",
+    response_model=JobRead,
+    responses=problem_responses(404, 409, 422),
+    summary="Cancel a job",
+)
+def cancel(job_id: uuid.UUID, session: SessionDep) -> JobRead:
+    """Cancel a queued or running job (a running one stops at its next progress report and
+    stores nothing). Cancelling a cancelled job is a no-op; a finished one is 409."""
+    job = _require_job(session, job_id)
+    if job.state == JobState.CANCELLED.value:
+        return JobRead.model_validate(job)
+    if not cancel_job(session, job_id=job_id):
+        session.rollback()
+        job = _require_job(session, job_id)
+        if job.state != JobState.CANCELLED.value:
+            raise ApiProblem(
+                409, f"job {job_id} has already {job.state}; there is nothing to cancel"
+            )
+    session.commit()
+    session.expire_all()
+    return JobRead.model_validate(_require_job(session, job_id))
+
+
+def _require_job(session: Session, job_id: uuid.UUID) -> Job:
+    job = repository.get_job(session, job_id=job_id)
+    if job is None:
+        raise ApiProblem(404, f"there is no job {job_id}")
+    return job
+
+
+def _read_job(sessions: sessionmaker[Session], job_id: uuid.UUID) -> Job | None:
+    with sessions() as session:
+        return repository.get_job(session, job_id=job_id)
+
+
+def _read_result(sessions: sessionmaker[Session], job_id: uuid.UUID) -> tuple[str, str] | None:
+    with sessions() as session:
+        stored = repository.get_job_result(session, job_id=job_id)
+        return None if stored is None else (stored.result_json, stored.matrix_csv)

@@ -1,0 +1,301 @@
+"""Pages for a browser: a job's page at /jobs/{job_id}, plain server-rendered HTML.
+
+No build step and no JavaScript: while the job is queued or running the page shows its state and
+progress and refreshes itself (`<meta http-equiv="refresh">`); once it succeeded, the plot
+(inline SVG), the metrics and a table of the targets with their detections; if it failed, the
+error. Everything from the database is escaped by Jinja2's autoescaping; the plot is the SVG
+`roadlink.plots` renders (matplotlib escapes its text).
+
+Who may see a page (a browser sends no Authorization header, and an API key must not go into a
+URL): a request carrying `?token=` from `POST /v1/jobs/{id}/page-link` (see
+`service/roadlink/api/pagelinks.py`), or an `Authorization: Bearer` key, allowed by the same rule as
+`GET /v1/jobs/{job_id}`; anyone when ROADLINK_AUTH=disabled. The page is outside /v1 and the
+OpenAPI document: it is for people, not clients.
+"""
+
+from __future__ import annotations
+
+import json
+import uuid
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any
+from urllib.parse import urlencode
+
+import numpy as np
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import HTMLResponse
+from jinja2 import Environment, FileSystemLoader, select_autoescape
+from markupsafe import Markup
+from sqlalchemy.orm import Session
+
+from roadlink.api.auth import POLICY, permits, principal_of_key
+from roadlink.api.deps import SessionDep, SettingsDep
+from roadlink.api.jobresults import CachedResult, JobResultCache, job_result
+from roadlink.api.pagelinks import token_key
+from roadlink.api.ratelimit import TokenBuckets, retry_after_header
+from roadlink.association.metrics import wrongly_grouped
+from roadlink.db import repository
+from roadlink.db.apikeys import authenticate_api_key
+from roadlink.db.models import ApiKey, JobState
+from roadlink.plots import PLOT_KINDS, target_colours
+
+router = APIRouter(tags=["pages"], include_in_schema=False)
+
+REFRESH_SECONDS = 2
+"""How often the page of an unfinished job reloads itself."""
+
+MAX_LISTED_DETECTIONS = 20_000
+"""Beyond this many, the targets are listed without their detections (the page would be too
+large to be useful); the result route has them all."""
+
+# No script may run, nothing is loaded from elsewhere, no other site may frame the page; inline
+# styles only (the page's own, and the SVG's).
+SECURITY_HEADERS = {
+    "Content-Security-Policy": "default-src 'none'; style-src 'unsafe-inline'; img-src data:; "
+    "frame-ancestors 'none'; base-uri 'none'; form-action 'none'",
+    # The URL may carry a page token: keep it out of other sites' logs and of caches.
+    "Referrer-Policy": "no-referrer",
+    "Cache-Control": "no-store",
+    "X-Content-Type-Options": "nosniff",
+}
+
+_templates = Environment(
+    loader=FileSystemLoader(Path(__file__).resolve().parent.parent / "templates"),
+    autoescape=select_autoescape(["html"]),
+    trim_blocks=True,
+    lstrip_blocks=True,
+)
+
+
+class PageDenied(Exception):
+    """The request may not see the page: the status and what to do about it."""
+
+    def __init__(self, status: int, message: str, headers: dict[str, str] | None = None) -> None:
+        super().__init__(message)
+        self.status = status
+        self.message = message
+        self.headers = headers or {}
+
+
+@router.get("/jobs/{job_id}", name="job_page", response_class=HTMLResponse)
+def job_page(
+    job_id: str,
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    kind: Annotated[str, Query()] = "time-space",
+    token: Annotated[str | None, Query()] = None,
+) -> HTMLResponse:
+    """A job's page (see the module docstring)."""
+    try:
+        parsed = uuid.UUID(job_id)
+    except ValueError:
+        return _message_page(404, "No such job", f"'{job_id}' is not a job id.")
+    try:
+        if settings.auth != "disabled":
+            _check_access(request, session, parsed, token)
+    except PageDenied as denied:
+        return _message_page(denied.status, "Not allowed", denied.message, denied.headers)
+    if kind not in PLOT_KINDS:
+        return _message_page(
+            422, "Unknown plot", f"There is no plot kind '{kind}'; try {', '.join(PLOT_KINDS)}."
+        )
+    job = repository.get_job(session, job_id=parsed)
+    if job is None:
+        return _message_page(404, "No such job", f"There is no job {parsed}.")
+    context: dict[str, Any] = {
+        "job": job,
+        "params_json": json.dumps(job.params, sort_keys=True),
+        "selection": _describe_selection(job.selection),
+        "refresh": None if JobState(job.state).finished else REFRESH_SECONDS,
+        "kind": kind,
+        # The links keep the token, so that switching plots works from a page link.
+        "kind_links": [
+            (k, "?" + urlencode({"kind": k} | ({"token": token} if token else {})))
+            for k in PLOT_KINDS
+        ],
+    }
+    if job.state == JobState.SUCCEEDED.value:
+        cache: JobResultCache = request.app.state.job_results
+        context["view"] = _result_view(job_result(session, cache, parsed), kind)
+    html = _templates.get_template("job.html").render(context)
+    return HTMLResponse(html, headers=SECURITY_HEADERS)
+
+
+def _check_access(request: Request, session: Session, job_id: uuid.UUID, token: str | None) -> None:
+    key: ApiKey | None
+    if token is not None:
+        key = token_key(session, token=token, job_id=job_id)
+        if key is None:
+            raise PageDenied(
+                401,
+                "This link does not open the page: it has expired, it is for another job, or "
+                "the API key that made it was revoked. Ask for a new one with "
+                f"POST /v1/jobs/{job_id}/page-link.",
+            )
+    else:
+        scheme, _, credentials = request.headers.get("authorization", "").partition(" ")
+        key = None
+        if scheme.lower() == "bearer" and credentials:
+            key = authenticate_api_key(session, key=credentials.strip())
+        if key is None:
+            raise PageDenied(
+                401,
+                "This page needs a link made for it: "
+                f"POST /v1/jobs/{job_id}/page-link with your API key returns one that opens "
+                "in a browser (or send the key as Authorization: Bearer).",
+                {"WWW-Authenticate": 'Bearer realm="roadlink"'},
+            )
+    principal = principal_of_key(key)
+    buckets: TokenBuckets | None = request.app.state.rate_limits
+    if buckets is not None:
+        wait = buckets.take(principal.id)
+        if wait > 0:
+            raise PageDenied(
+                429,
+                f"Too many requests with API key {key.prefix}; retry in "
+                f"{retry_after_header(wait)} s.",
+                {"Retry-After": retry_after_header(wait)},
+            )
+    rule = POLICY[("GET", "/v1/jobs/{job_id}")]
+    if not permits(rule, session, principal, {"job_id": str(job_id)}):
+        raise PageDenied(403, f"API key {key.prefix} may not read job {job_id}.")
+
+
+@dataclass
+class DetectionRow:
+    detection_id: str
+    sensor_id: str
+    position: float
+    timestamp: float
+    velocity: float
+    label: str | None
+    wrong: bool
+
+
+@dataclass
+class TargetRow:
+    name: str
+    colour: str
+    n_detections: int
+    start: float
+    end: float
+    first_position: float
+    last_position: float
+    mean_speed: float | None
+    monotone: bool
+    label: str | None
+    label_share: str | None
+    n_wrong: int
+    detections: list[DetectionRow] = field(default_factory=list)
+
+
+@dataclass
+class ResultView:
+    svg: Markup
+    metrics: list[tuple[str, str, str]] | None
+    targets: list[TargetRow]
+    unassigned: list[DetectionRow]
+    labelled: bool
+    n_detections: int
+    n_wrong: int
+    listed: bool
+
+
+METRIC_NAMES = (
+    ("accuracy", "Accuracy", "detections whose group is matched to their own target"),
+    ("pairwise_precision", "Pairwise precision", "pairs put together that belong together"),
+    ("pairwise_recall", "Pairwise recall", "pairs belonging together that were put together"),
+    ("pairwise_f1", "Pairwise F1", "harmonic mean of the two"),
+    ("ari", "Adjusted Rand index", "1 is perfect, 0 is chance"),
+    ("complete_targets", "Complete targets", "targets grouped exactly right"),
+)
+
+
+def _result_view(cached: CachedResult, kind: str) -> ResultView:
+    result = cached.result
+    d = result.detections
+    labelled = bool(d.labelled.any())
+    wrong = wrongly_grouped(result.groups, d.target)
+    listed = len(d) <= MAX_LISTED_DETECTIONS
+
+    def row(i: int) -> DetectionRow:
+        return DetectionRow(
+            detection_id=str(d.detection_id[i]),
+            sensor_id=str(d.sensor_id[i]),
+            position=float(d.position[i]),
+            timestamp=float(d.timestamp[i]),
+            velocity=float(d.velocity[i]),
+            label=None if d.target[i] is None else str(d.target[i]),
+            wrong=bool(wrong[i]),
+        )
+
+    colours = target_colours(result.n_targets)
+    targets = []
+    for k, (members, track) in enumerate(zip(result.target_members(), cached.tracks, strict=True)):
+        labels = Counter(str(t) for t in d.target[members] if t is not None)
+        top = labels.most_common(1)
+        span = track.end - track.start
+        first, last = track.passes[0], track.passes[-1]
+        targets.append(
+            TargetRow(
+                name=f"T{k + 1}",
+                colour=_hex(colours[k]),
+                n_detections=int(members.size),
+                start=track.start,
+                end=track.end,
+                first_position=first.position,
+                last_position=last.position,
+                mean_speed=(last.position - first.position) / span if span > 0 else None,
+                monotone=track.monotone,
+                label=top[0][0] if top else None,
+                label_share=f"{top[0][1]}/{members.size}" if top else None,
+                n_wrong=int(wrong[members].sum()),
+                detections=[row(int(i)) for i in members] if listed else [],
+            )
+        )
+    unassigned = np.flatnonzero(result.groups < 0)
+    metrics = None
+    if result.metrics is not None:
+        values = result.metrics.to_dict()
+        metrics = [
+            (title, f"{values[name]:.3f}" if name == "ari" else f"{values[name]:.1%}", meaning)
+            for name, title, meaning in METRIC_NAMES
+        ]
+    svg = cached.plot(kind, "svg").decode()
+    return ResultView(
+        # From the <svg> element on: the XML declaration and DOCTYPE do not belong inside HTML.
+        svg=Markup(svg[svg.index("<svg") :]),
+        metrics=metrics,
+        targets=targets,
+        unassigned=[row(int(i)) for i in unassigned] if listed else [],
+        labelled=labelled,
+        n_detections=len(d),
+        n_wrong=int(wrong.sum()),
+        listed=listed,
+    )
+
+
+def _hex(colour: tuple[float, float, float, float]) -> str:
+    return "#" + "".join(f"{round(255 * c):02x}" for c in colour[:3])
+
+
+def _describe_selection(selection: dict[str, Any]) -> str:
+    if selection.get("batch_ids"):
+        ids = [str(b) for b in selection["batch_ids"]]
+        return ("batch " if len(ids) == 1 else "batches ") + ", ".join(ids)
+    start, end = selection.get("start"), selection.get("end")
+    left = "-inf" if start is None else f"{start:g}"
+    right = "+inf" if end is None else f"{end:g}"
+    return f"the deployment's detections with timestamps in [{left}, {right})"
+
+
+def _message_page(
+    status: int, title: str, message: str, headers: dict[str, str] | None = None
+) -> HTMLResponse:
+    html = _templates.get_template("message.html").render(
+        status=status, title=title, message=message
+    )
+    return HTMLResponse(html, status_code=status, headers={**SECURITY_HEADERS, **(headers or {})})

@@ -1,0 +1,49 @@
+"""The associator contract: a named algorithm with declared, typed, defaulted parameters.
+
+As in scikit-learn, constructing an associator only stores its parameters; all work happens in
+`group`, which returns a group index per detection (-1 = unassigned, e.g. a false alarm).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from typing import Any, ClassVar
+
+from pydantic import BaseModel, ConfigDict
+
+from roadlink.association.detections import Detections, IntArray
+
+Progress = Callable[[float], None]
+"""Called with the share of the work done, from 0 to 1."""
+
+
+class AssociatorParams(BaseModel):
+    """Base of every associator's parameters: unknown names are an error, not silently ignored."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class AssociationError(ValueError):
+    """The associator cannot run on these detections with these parameters (a user error)."""
+
+
+class Associator(ABC):
+    """A way of grouping detections into targets."""
+
+    name: ClassVar[str]
+    description: ClassVar[str]
+    needs_labels: ClassVar[bool] = False
+    Params: ClassVar[type[AssociatorParams]]
+
+    def __init__(self, params: AssociatorParams | None = None, **values: Any) -> None:
+        self.params = params if params is not None else self.Params(**values)
+
+    @classmethod
+    def parameters_schema(cls) -> dict[str, Any]:
+        """JSON Schema of the parameters, for `GET /v1/associators` and the CLI's help."""
+        return cls.Params.model_json_schema()
+
+    @abstractmethod
+    def group(self, detections: Detections, progress: Progress | None = None) -> IntArray:
+        """Group index of every detection (-1 = unassigned)."""

@@ -1,0 +1,182 @@
+"""How good a grouping is, measured against true labels.
+
+`groups[i]` is the group of detection i (-1 = unassigned); `labels[i]` its true target, ``None``
+when unknown and ``"clutter"`` for a false alarm. Only labelled detections are scored.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+from sklearn.metrics import adjusted_rand_score
+
+from roadlink.association.detections import CLUTTER, IntArray, ObjectArray
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """Scores of a grouping; see `score_grouping` for their definitions."""
+
+    accuracy: float
+    pairwise_precision: float
+    pairwise_recall: float
+    pairwise_f1: float
+    ari: float
+    complete_targets: float
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def score_grouping(groups: IntArray, labels: ObjectArray) -> Metrics | None:
+    """Score `groups` against `labels` over the labelled detections; None when none is labelled.
+
+    - accuracy (the paper's figure): groups are matched one-to-one to true targets so as to
+      maximise agreeing detections (Hungarian method on the contingency table); the share of
+      detections whose group is matched to their own target. Clutter is right when unassigned.
+    - pairwise precision / recall / F1 over pairs of detections put in one group vs truly of one
+      target.
+    - ari: adjusted Rand index, with each unassigned detection and each clutter detection a
+      singleton.
+    - complete_targets: share of true targets whose detections form exactly one group, no more
+      and no less (the row of the target x sensor matrix is exactly right).
+    """
+    labelled = np.array([t is not None for t in labels], dtype=bool)
+    if not labelled.any():
+        return None
+    pred = np.asarray(groups, dtype=np.int64)[labelled]
+    truth_text = labels[labelled].astype(str)
+    is_clutter = truth_text == CLUTTER
+    truth = np.unique(truth_text, return_inverse=True)[1]
+    truth = np.where(is_clutter, -1, truth)
+
+    accuracy = _matched_accuracy(pred, truth)
+    precision, recall = _pairwise_precision_recall(pred, truth)
+    f1 = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
+    return Metrics(
+        accuracy=accuracy,
+        pairwise_precision=precision,
+        pairwise_recall=recall,
+        pairwise_f1=f1,
+        ari=float(adjusted_rand_score(_singletons(truth), _singletons(pred))),
+        complete_targets=_complete_share(pred, truth),
+    )
+
+
+def _matched_accuracy(pred: IntArray, truth: IntArray) -> float:
+    right = int(np.sum((pred == -1) & (truth == -1)))
+    both = (pred >= 0) & (truth >= 0)
+    if both.any():
+        right += _max_matching_weight(*_pair_counts(pred[both], truth[both]))
+    return right / pred.size
+
+
+def _pair_counts(pred: IntArray, truth: IntArray) -> tuple[IntArray, IntArray, IntArray]:
+    """The non-zero cells of the group x target contingency table: (group, target, count)."""
+    pairs, counts = np.unique(np.column_stack([pred, truth]), axis=0, return_counts=True)
+    return pairs[:, 0], pairs[:, 1], counts
+
+
+def wrongly_grouped(groups: IntArray, labels: ObjectArray) -> npt.NDArray[np.bool_]:
+    """Mask of the detections the accuracy counts as wrong (False where unlabelled).
+
+    Groups are matched one-to-one to true targets as for accuracy; a labelled detection is wrong
+    when its group is not matched to its own target, when it is left unassigned although it
+    belongs to a target, or when it is clutter put in a group. So the number of wrong detections
+    is exactly (1 - accuracy) x the number of labelled ones.
+    """
+    groups = np.asarray(groups, dtype=np.int64)
+    labelled = np.array([t is not None for t in labels], dtype=bool)
+    wrong = np.zeros(groups.size, dtype=bool)
+    if not labelled.any():
+        return wrong
+    truth_text = labels[labelled].astype(str)
+    truth = np.where(truth_text == CLUTTER, -1, np.unique(truth_text, return_inverse=True)[1])
+    pred = groups[labelled]
+    right = (pred == -1) & (truth == -1)
+    both = (pred >= 0) & (truth >= 0)
+    if both.any():
+        matched_group, matched_target, _ = _best_matching(*_pair_counts(pred[both], truth[both]))
+        partner = np.full(int(pred.max()) + 1, -2, dtype=np.int64)
+        partner[matched_group] = matched_target
+        right[both] = partner[pred[both]] == truth[both]
+    wrong[np.flatnonzero(labelled)[~right]] = True
+    return wrong
+
+
+def _max_matching_weight(groups: IntArray, targets: IntArray, counts: IntArray) -> int:
+    """Weight of the best one-to-one matching of groups to targets."""
+    return int(_best_matching(groups, targets, counts)[2].sum())
+
+
+def _best_matching(
+    groups: IntArray, targets: IntArray, counts: IntArray
+) -> tuple[IntArray, IntArray, IntArray]:
+    """The best one-to-one matching of groups to targets (an assignment problem), as matched
+    (group, target, count) triples, from the table's non-zero cells (group, target, count).
+
+    The contingency table is sparse (a group mostly holds one target) and can be 20,000 x
+    20,000, so it is solved as a sparse assignment (LAPJVsp). Every group also gets a private
+    "no target" column so that a full matching of the groups always exists; costs are
+    `top - count`, so minimising cost maximises the matched count.
+    """
+    group_ids, g = np.unique(groups, return_inverse=True)
+    target_ids, t = np.unique(targets, return_inverse=True)
+    n_g, n_t = int(g.max()) + 1, int(t.max()) + 1
+    top = int(counts.max()) + 1
+    rows = np.concatenate([g, np.arange(n_g)])
+    cols = np.concatenate([t, n_t + np.arange(n_g)])
+    cost = np.concatenate([top - counts, np.full(n_g, top)]).astype(np.float64)
+    graph = csr_matrix((cost, (rows, cols)), shape=(n_g, n_t + n_g))
+    matched_rows, matched_cols = min_weight_full_bipartite_matching(graph)
+    real = matched_cols < n_t
+    matched_rows, matched_cols = matched_rows[real], matched_cols[real]
+    matched_counts = top - np.asarray(graph[matched_rows, matched_cols]).ravel()
+    return (
+        group_ids[matched_rows],
+        target_ids[matched_cols],
+        matched_counts.astype(np.int64),
+    )
+
+
+def _pairs_within(ids: IntArray) -> int:
+    """Number of unordered pairs of detections sharing an id (ids < 0 share with nobody)."""
+    counts = np.unique(ids[ids >= 0], return_counts=True)[1]
+    return int(np.sum(counts * (counts - 1) // 2))
+
+
+def _pairwise_precision_recall(pred: IntArray, truth: IntArray) -> tuple[float, float]:
+    both = (pred >= 0) & (truth >= 0)
+    agreeing = 0
+    if both.any():
+        counts = _pair_counts(pred[both], truth[both])[2]
+        agreeing = int(np.sum(counts * (counts - 1) // 2))
+    predicted, true = _pairs_within(pred), _pairs_within(truth)
+    precision = agreeing / predicted if predicted else 1.0
+    recall = agreeing / true if true else 1.0
+    return precision, recall
+
+
+def _singletons(ids: IntArray) -> IntArray:
+    """Give every negative id (unassigned, clutter) a label of its own."""
+    out = ids.copy()
+    lone = out < 0
+    out[lone] = out.max(initial=0) + 1 + np.arange(int(lone.sum()))
+    return out
+
+
+def _complete_share(pred: IntArray, truth: IntArray) -> float:
+    """Share of true targets whose detections are exactly one group's labelled detections."""
+    real = truth >= 0
+    if not real.any():
+        return 1.0
+    target_ids, target_size = np.unique(truth[real], return_counts=True)
+    group_size = np.bincount(pred[pred >= 0]) if (pred >= 0).any() else np.zeros(0, np.int64)
+    groups, targets, counts = _pair_counts(pred[real], truth[real])
+    whole = (groups >= 0) & (counts == target_size[np.searchsorted(target_ids, targets)])
+    whole[whole] &= group_size[groups[whole]] == counts[whole]
+    return int(whole.sum()) / target_ids.size

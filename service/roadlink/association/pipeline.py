@@ -1,0 +1,53 @@
+"""One call from detections to a scored result: what the CLI and the service workers both run."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from pydantic import ValidationError
+
+from roadlink.association.associators import (
+    DEFAULT_ASSOCIATOR,
+    AssociationError,
+    AssociatorParams,
+    Progress,
+    get_associator_class,
+)
+from roadlink.association.detections import Detections
+from roadlink.association.result import AssociationResult, build_result
+
+
+def parse_params(associator: str, params: Mapping[str, Any] | None) -> AssociatorParams:
+    """Validate an associator's parameters (strings such as CLI values are converted)."""
+    cls = get_associator_class(associator)
+    try:
+        return cls.Params(**dict(params or {}))
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"parameter '{'.'.join(map(str, e['loc']))}': {e['msg']}" for e in exc.errors()
+        )
+        raise AssociationError(f"invalid parameters for '{associator}': {problems}") from None
+
+
+def associate(
+    detections: Detections,
+    associator: str = DEFAULT_ASSOCIATOR,
+    params: Mapping[str, Any] | None = None,
+    progress: Progress | None = None,
+) -> AssociationResult:
+    """Group `detections` into targets with the named associator, and score the grouping.
+
+    Unsupervised associators never see the labels, so scores cannot leak into the grouping.
+    """
+    cls = get_associator_class(associator)
+    checked = parse_params(associator, params)
+    if len(detections) == 0:
+        raise AssociationError("there are no detections to associate")
+    if detections.sensor_positions.size < 2:
+        raise AssociationError(
+            "the detections all come from one sensor position; association needs at least two"
+        )
+    visible = detections if cls.needs_labels else detections.without_labels()
+    groups = cls(checked).group(visible, progress)
+    return build_result(detections, groups, associator, checked.model_dump())

@@ -1,0 +1,191 @@
+"""The association result of design.md: targets with their detections, unassigned, metrics."""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from roadlink.association.backprojection import backproject_times
+from roadlink.association.detections import Detections, IntArray
+from roadlink.association.metrics import Metrics, score_grouping
+
+
+@dataclass(frozen=True, eq=False)
+class AssociationResult:
+    """Detections grouped into targets.
+
+    `groups[i]` is the target index of detection i in `targets_order` terms: targets are numbered
+    0..n_targets-1 in the order they pass the reference sensor; -1 is unassigned.
+    """
+
+    associator: str
+    params: dict[str, Any]
+    detections: Detections
+    groups: IntArray
+    metrics: Metrics | None
+
+    @property
+    def n_targets(self) -> int:
+        return int(self.groups.max(initial=-1)) + 1
+
+    def target_members(self) -> list[IntArray]:
+        """Detection indices of each target, ordered by position (then time)."""
+        order = np.lexsort((self.detections.timestamp, self.detections.position, self.groups))
+        sorted_groups = self.groups[order]
+        assigned = order[sorted_groups >= 0]
+        bounds = np.flatnonzero(np.diff(self.groups[assigned])) + 1
+        return np.split(assigned, bounds) if assigned.size else []
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON contract of design.md."""
+        rows = _detection_rows(self.detections)
+        return {
+            "associator": self.associator,
+            "params": self.params,
+            "n_detections": len(self.detections),
+            "n_targets": self.n_targets,
+            "targets": [
+                {"target": f"T{k + 1}", "detections": [rows[i] for i in members.tolist()]}
+                for k, members in enumerate(self.target_members())
+            ],
+            "unassigned": [rows[i] for i in np.flatnonzero(self.groups < 0).tolist()],
+            "metrics": None if self.metrics is None else self.metrics.to_dict(),
+        }
+
+    def to_matrix_csv(self) -> str:
+        """The paper's X'': one row per target, per sensor its detection id, velocity and time.
+
+        A cell holding several detections (possible with K-means) lists them separated by ';'.
+        """
+        d = self.detections
+        sensors = _sensors_in_road_order(d)
+        column = {sid: k for k, sid in enumerate(sensors)}
+        # Python values once, not a numpy scalar conversion per cell.
+        sensor_of = [column[sid] for sid in d.sensor_id.tolist()]
+        ids = [str(i) for i in d.detection_id.tolist()]
+        velocities = [repr(v) for v in d.velocity.tolist()]
+        timestamps = [repr(t) for t in d.timestamp.tolist()]
+        out = io.StringIO()
+        writer = csv.writer(out, lineterminator="\n")
+        writer.writerow(
+            ["target"]
+            + [
+                f"{sid}_{field}"
+                for sid in sensors
+                for field in ("detection_id", "velocity", "timestamp")
+            ]
+        )
+        for k, members in enumerate(self.target_members()):
+            cells: list[list[list[str]]] = [[[], [], []] for _ in sensors]
+            for i in members.tolist():
+                cell = cells[sensor_of[i]]
+                cell[0].append(ids[i])
+                cell[1].append(velocities[i])
+                cell[2].append(timestamps[i])
+            writer.writerow([f"T{k + 1}"] + [";".join(v) for cell in cells for v in cell])
+        return out.getvalue()
+
+
+def result_from_dict(
+    document: Mapping[str, Any], labels: Mapping[str, str | None] | None = None
+) -> AssociationResult:
+    """The result that `AssociationResult.to_dict` wrote `document` from, rebuilt.
+
+    The document names every detection once, with its group, but not its true label: `labels`
+    gives them by detection id (ids it lacks are unlabelled), and the result is scored again, so
+    that the wrongly grouped detections can be told. Detections come back target by target (each
+    ordered by position) and then the unassigned ones; `groups` keeps the document's numbering,
+    so target "T3" is the same target in both.
+    """
+    labels = labels or {}
+    rows: list[Mapping[str, Any]] = []
+    groups: list[int] = []
+    for k, target in enumerate(document["targets"]):
+        rows.extend(target["detections"])
+        groups.extend([k] * len(target["detections"]))
+    rows.extend(document["unassigned"])
+    groups.extend([-1] * len(document["unassigned"]))
+    n = len(rows)
+    ids = np.array([str(r["detection_id"]) for r in rows], dtype=object).reshape(n)
+    detections = Detections(
+        position=np.array([r["position"] for r in rows], dtype=np.float64).reshape(n),
+        velocity=np.array([r["velocity"] for r in rows], dtype=np.float64).reshape(n),
+        timestamp=np.array([r["timestamp"] for r in rows], dtype=np.float64).reshape(n),
+        sensor_id=np.array([str(r["sensor_id"]) for r in rows], dtype=object).reshape(n),
+        detection_id=ids,
+        target=np.array([labels.get(i) for i in ids], dtype=object).reshape(n),
+    )
+    group_array = np.array(groups, dtype=np.int64).reshape(n)
+    return AssociationResult(
+        associator=str(document["associator"]),
+        params=dict(document["params"]),
+        detections=detections,
+        groups=group_array,
+        metrics=score_grouping(group_array, detections.target),
+    )
+
+
+def build_result(
+    detections: Detections, groups: IntArray, associator: str, params: dict[str, Any]
+) -> AssociationResult:
+    """Renumber groups by the time each target passes the reference sensor, and score them.
+
+    A target's passing time is the back-projected time of its detection nearest the reference
+    sensor (its own passing time, when it was seen there).
+    """
+    groups = np.asarray(groups, dtype=np.int64)
+    if groups.shape != (len(detections),):
+        raise ValueError(f"{len(detections)} detections but {groups.size} group indices")
+    renumbered = np.full(groups.size, -1, dtype=np.int64)
+    assigned = np.flatnonzero(groups >= 0)
+    if assigned.size:
+        times = backproject_times(
+            detections.position,
+            detections.velocity,
+            detections.timestamp,
+            detections.reference_position,
+        )
+        # Per group, its detection with the smallest position (first along the road).
+        order = assigned[np.lexsort((detections.position[assigned], groups[assigned]))]
+        labels, first = np.unique(groups[order], return_index=True)
+        rank = np.empty(labels.size, dtype=np.int64)
+        rank[np.argsort(times[order[first]], kind="stable")] = np.arange(labels.size)
+        renumbered[assigned] = rank[np.searchsorted(labels, groups[assigned])]
+    return AssociationResult(
+        associator=associator,
+        params=params,
+        detections=detections,
+        groups=renumbered,
+        metrics=score_grouping(renumbered, detections.target),
+    )
+
+
+def _sensors_in_road_order(d: Detections) -> list[str]:
+    order = np.lexsort((d.sensor_id.astype(str), d.position))
+    return list(dict.fromkeys(d.sensor_id[order].tolist()))
+
+
+def _detection_rows(d: Detections) -> list[dict[str, Any]]:
+    """Every detection as its result-JSON object, in input order."""
+    return [
+        {
+            "detection_id": detection_id,
+            "sensor_id": sensor_id,
+            "position": position,
+            "velocity": velocity,
+            "timestamp": timestamp,
+        }
+        for detection_id, sensor_id, position, velocity, timestamp in zip(
+            d.detection_id.tolist(),
+            d.sensor_id.tolist(),
+            d.position.tolist(),
+            d.velocity.tolist(),
+            d.timestamp.tolist(),
+            strict=True,
+        )
+    ]

@@ -1,0 +1,17 @@
+"""The roadlink command. Each module registers its own sub-commands on `app`."""
+
+from __future__ import annotations
+
+import typer
+
+app = typer.Typer(
+    name="roadlink",
+    help="Group anonymous roadside detections into one row per vehicle.",
+    no_args_is_help=True,
+    add_completion=False,
+)
+
+# Sub-command modules register themselves on import.
+from roadlink.cli import analysis, keys, locate, reproduce, server, sumo  # noqa: E402,F401
+
+__all__ = ["app"]

@@ -1,0 +1,3 @@
+from roadlink.cli import app
+
+app()

@@ -1,0 +1,159 @@
+"""Commands that run the core without a server: simulate, associate, reproduce."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from roadlink.association import AssociationResult, DetectionError, Detections, associate
+from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR, AssociationError
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.cli import app
+from roadlink.plots import PLOT_FORMATS, PLOT_KINDS, render_plot
+from roadlink.simulation import PRESETS, preset, simulate
+
+
+def fail(message: str) -> typer.Exit:
+    """Print an error a person can act on, and exit with status 2 (bad input)."""
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(code=2)
+
+
+def plot_format_of(path: Path) -> str:
+    """The plot format named by a file's suffix (.png or .svg); exit 2 otherwise."""
+    fmt = path.suffix.lower().lstrip(".")
+    if fmt not in PLOT_FORMATS:
+        raise fail(f"--plot file must end in .png or .svg, got '{path.name}'")
+    return fmt
+
+
+def parse_param_options(values: list[str]) -> dict[str, str]:
+    """`key=value` options into a dict; the associator's schema converts the values."""
+    params: dict[str, str] = {}
+    for item in values:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise fail(f"--param takes key=value, got '{item}'")
+        params[key.strip()] = value.strip()
+    return params
+
+
+def associate_file(file: Path, associator: str, param: list[str]) -> AssociationResult:
+    """Read a detection CSV ('-' = stdin) and associate it; exit 2 with the reason on bad input."""
+    try:
+        text = sys.stdin.read() if str(file) == "-" else file.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise fail(f"cannot read {file}: {exc.strerror}") from None
+    try:
+        detections = read_detections_csv(text)
+        return associate(detections, associator, parse_param_options(param))
+    except (DetectionError, AssociationError) as exc:
+        raise fail(f"{file}: {exc}") from None
+
+
+@app.command("simulate")
+def simulate_command(
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="CSV file to write ('-' = stdout).")
+    ],
+    preset_name: Annotated[
+        str, typer.Option("--preset", help=f"One of: {', '.join(PRESETS)}.")
+    ] = "large",
+    seed: Annotated[int, typer.Option(help="Random seed (same seed, same data).")] = 0,
+    targets: Annotated[int | None, typer.Option(help="Number of targets.")] = None,
+    sensors: Annotated[
+        int | None, typer.Option(help="Number of sensors, evenly spaced 100 m apart from 0.")
+    ] = None,
+    velocity_fluctuation: Annotated[
+        float | None, typer.Option(help="OU velocity std as a share of v0 (0 = constant).")
+    ] = None,
+    miss: Annotated[float, typer.Option(help="Probability of a missed detection.")] = 0.0,
+    false_alarms: Annotated[float, typer.Option(help="False alarms per true detection.")] = 0.0,
+    duplicates: Annotated[float, typer.Option(help="Probability of a duplicated detection.")] = 0.0,
+    unlabelled: Annotated[bool, typer.Option(help="Leave the target column empty.")] = False,
+) -> None:
+    """Generate labelled detections with the paper's Algorithm 1 and write them as CSV."""
+    overrides: dict[str, object] = {
+        "miss_probability": miss,
+        "false_alarm_rate": false_alarms,
+        "duplicate_probability": duplicates,
+    }
+    if targets is not None:
+        overrides["n_targets"] = targets
+    if sensors is not None:
+        overrides["sensor_positions"] = [100.0 * i for i in range(sensors)]
+    if velocity_fluctuation is not None:
+        overrides["velocity_fluctuation"] = velocity_fluctuation
+    try:
+        config = preset(preset_name, **overrides)
+    except ValueError as exc:
+        raise fail(str(exc)) from None
+    write_simulated(simulate(config, seed=seed).detections, output, unlabelled=unlabelled)
+
+
+def write_simulated(detections: Detections, output: Path, *, unlabelled: bool) -> None:
+    """Write simulated detections as CSV to a file or, for '-', to stdout."""
+    if unlabelled:
+        detections = detections.without_labels()
+    text = write_detections_csv(detections)
+    if str(output) == "-":
+        sys.stdout.write(text)
+    else:
+        output.write_text(text)
+        typer.echo(f"wrote {len(detections)} detections to {output}", err=True)
+
+
+@app.command("associate")
+def associate_command(
+    file: Annotated[Path, typer.Argument(help="Detection CSV ('-' = stdin).")],
+    associator: Annotated[
+        str, typer.Option(help=f"One of: {', '.join(ASSOCIATORS)}.")
+    ] = DEFAULT_ASSOCIATOR,
+    param: Annotated[
+        list[str] | None, typer.Option("--param", help="Associator parameter key=value (repeat).")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the result JSON.")] = False,
+    as_csv: Annotated[
+        bool, typer.Option("--csv", help="Print the target x sensor matrix (the paper's X'').")
+    ] = False,
+    plot: Annotated[
+        Path | None,
+        typer.Option("--plot", help="Also draw the result to this .png or .svg file."),
+    ] = None,
+    plot_kind: Annotated[
+        str, typer.Option("--plot-kind", help=f"One of: {', '.join(PLOT_KINDS)}.")
+    ] = "time-space",
+) -> None:
+    """Group the detections of a CSV file into targets, and score them when labelled."""
+    if as_json and as_csv:
+        raise fail("choose one of --json and --csv")
+    plot_format = None if plot is None else plot_format_of(plot)
+    if plot_kind not in PLOT_KINDS:
+        raise fail(f"unknown --plot-kind '{plot_kind}'; known: {', '.join(PLOT_KINDS)}")
+    result = associate_file(file, associator, param or [])
+    if plot is not None and plot_format is not None:
+        try:
+            plot.write_bytes(render_plot(result, plot_kind, plot_format))
+        except OSError as exc:
+            raise fail(f"cannot write {plot}: {exc.strerror}") from None
+        typer.echo(f"wrote {plot_kind} plot to {plot}", err=True)
+    if as_json:
+        sys.stdout.write(json.dumps(result.to_dict(), indent=2) + "\n")
+    elif as_csv:
+        sys.stdout.write(result.to_matrix_csv())
+    else:
+        _print_summary(result.to_dict())
+
+
+def _print_summary(result: dict[str, object]) -> None:
+    typer.echo(
+        f"{result['associator']}: {result['n_detections']} detections -> "
+        f"{result['n_targets']} targets, {len(result['unassigned'])} unassigned"  # type: ignore[arg-type]
+    )
+    metrics = result["metrics"]
+    if isinstance(metrics, dict):
+        typer.echo("  " + "  ".join(f"{k}={v:.4f}" for k, v in metrics.items()))

@@ -1,0 +1,233 @@
+"""Commands that run the service: serve, worker, migrate, openapi."""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import multiprocessing.process
+import threading
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from roadlink.cli import app
+from roadlink.settings import Settings
+
+log = logging.getLogger("roadlink")
+
+# Spawned, not forked: a worker must not inherit the API's threads, sockets or connections.
+_spawn = multiprocessing.get_context("spawn")
+
+
+def _settings(**overrides: object) -> Settings:
+    given = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        return Settings(**given)  # type: ignore[arg-type]
+    except Exception as exc:
+        typer.echo(f"error: invalid configuration: {exc}", err=True)
+        raise typer.Exit(code=2) from None
+
+
+class WorkerPool:
+    """N worker processes, restarted if one dies, stopped together."""
+
+    def __init__(self, settings: Settings, size: int) -> None:
+        self.settings = settings
+        self.size = size
+        self.processes: list[multiprocessing.process.BaseProcess] = []
+        self._stopping = threading.Event()
+        self._watcher = threading.Thread(target=self._watch, daemon=True)
+
+    def start(self) -> None:
+        from roadlink.queue.worker import run_worker_process
+
+        for _ in range(self.size):
+            process = _spawn.Process(target=run_worker_process, args=(self.settings,))
+            process.start()
+            self.processes.append(process)
+        self._watcher.start()
+
+    def _watch(self) -> None:
+        from roadlink.queue.worker import run_worker_process
+
+        while not self._stopping.wait(1.0):
+            for k, process in enumerate(self.processes):
+                if not process.is_alive() and not self._stopping.is_set():
+                    log.warning(
+                        "worker %s exited (%s); starting another", process.pid, process.exitcode
+                    )
+                    replacement = _spawn.Process(target=run_worker_process, args=(self.settings,))
+                    replacement.start()
+                    self.processes[k] = replacement
+
+    def stop(self, grace_seconds: float = 10.0) -> None:
+        """SIGTERM every worker (each hands its job back), then SIGKILL what is left."""
+        self._stopping.set()
+        for process in self.processes:
+            if process.is_alive():
+                process.terminate()
+        deadline = time.monotonic() + grace_seconds
+        for process in self.processes:
+            process.join(max(deadline - time.monotonic(), 0.1))
+            if process.is_alive():
+                process.kill()
+                process.join()
+
+    def join(self) -> None:
+        for process in self.processes:
+            process.join()
+
+
+def _migrate(settings: Settings) -> None:
+    from roadlink.db.migrate import upgrade_to_head
+
+    upgrade_to_head(settings.database_url)
+    # Readiness checks read the revision on every probe; alembic would log each one.
+    logging.getLogger("alembic").setLevel(logging.WARNING)
+
+
+@app.command("serve")
+def serve_command(
+    host: Annotated[str | None, typer.Option(help="Address to listen on [ROADLINK_HOST].")] = None,
+    port: Annotated[int | None, typer.Option(help="Port to listen on [ROADLINK_PORT].")] = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(help="Worker processes (0 = API only) [ROADLINK_WORKERS; default: cores]."),
+    ] = None,
+) -> None:
+    """Run the API and its workers (migrating the database first, so a fresh one just works)."""
+    import uvicorn
+
+    from roadlink.api import create_app
+
+    settings = _settings(host=host, port=port, workers=workers)
+    if settings.auth == "disabled" and not is_loopback(settings.host):
+        typer.echo(
+            f"error: ROADLINK_AUTH=disabled turns API keys off, which is only for local "
+            f"development: it is refused on {settings.host}, which other machines can reach. "
+            "Listen on 127.0.0.1 (--host 127.0.0.1), or create keys with `roadlink keys create` "
+            "and leave ROADLINK_AUTH unset.",
+            err=True,
+        )
+        raise typer.Exit(code=2)
+    logging.basicConfig(
+        level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(message)s"
+    )
+    _migrate(settings)
+    _say_how_to_get_a_key(settings)
+    pool = WorkerPool(settings, settings.workers)
+    pool.start()
+    log.info("started %d worker process(es) on %s", settings.workers, _safe_url(settings))
+    try:
+        uvicorn.run(
+            create_app(settings),
+            host=settings.host,
+            port=settings.port,
+            log_level=settings.log_level,
+            # The body limit is enforced by the app; uvicorn's own keep-alive defaults suit.
+        )
+    finally:
+        pool.stop()
+
+
+@app.command("worker")
+def worker_command(
+    workers: Annotated[
+        int | None,
+        typer.Option(min=1, help="Worker processes to run [ROADLINK_WORKERS; default: cores]."),
+    ] = None,
+) -> None:
+    """Run workers only, against ROADLINK_DATABASE_URL (to scale out beside `serve`)."""
+    settings = _settings(workers=workers)
+    workers = settings.workers
+    if workers < 1:
+        typer.echo(
+            "error: `roadlink worker` needs at least one worker (ROADLINK_WORKERS)", err=True
+        )
+        raise typer.Exit(code=2)
+    if workers == 1:
+        from roadlink.queue.worker import run_worker_process
+
+        run_worker_process(settings)
+        return
+    logging.basicConfig(
+        level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(message)s"
+    )
+    pool = WorkerPool(settings, workers)
+    pool.start()
+    try:
+        pool.join()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        pool.stop()
+
+
+@app.command("migrate")
+def migrate_command() -> None:
+    """Bring the database schema to the newest migration (alembic upgrade head)."""
+    settings = _settings()
+    _migrate(settings)
+    typer.echo(f"database at the newest schema: {_safe_url(settings)}", err=True)
+
+
+@app.command("openapi")
+def openapi_command(
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Where to write ('-' = stdout).")
+    ] = Path("openapi/openapi.json"),
+) -> None:
+    """Write the OpenAPI document of the API (the committed contract is openapi/openapi.json)."""
+    from roadlink.api.app import create_app, openapi_json
+
+    text = openapi_json(create_app(Settings(database_url="sqlite://")))
+    if str(output) == "-":
+        typer.echo(text, nl=False)
+        return
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(text, encoding="utf-8")
+    typer.echo(f"wrote {output}", err=True)
+
+
+def is_loopback(host: str) -> bool:
+    """True when `host` is reachable from this machine only (127.0.0.0/8, ::1, localhost)."""
+    import ipaddress
+
+    if host.strip("[]").lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:  # a host name other than localhost may resolve anywhere
+        return False
+
+
+def _say_how_to_get_a_key(settings: Settings) -> None:
+    """On a database without an admin key, say how to create the first one."""
+    from roadlink.db.apikeys import has_admin_key
+    from roadlink.db.engine import make_engine, make_session_factory
+
+    if settings.auth == "disabled":
+        log.warning("ROADLINK_AUTH=disabled: every /v1 route is open (local development only)")
+        return
+    engine = make_engine(settings.database_url)
+    try:
+        with make_session_factory(engine)() as session:
+            found = has_admin_key(session)
+    finally:
+        engine.dispose()
+    if not found:
+        typer.echo(
+            "No API key exists yet, and every /v1 request needs one. Create the first (it is "
+            "printed once) with:\n"
+            "    roadlink keys create --scope admin\n"
+            "and send it as `Authorization: Bearer <key>`.",
+            err=True,
+        )
+
+
+def _safe_url(settings: Settings) -> str:
+    from sqlalchemy import make_url
+
+    return make_url(settings.database_url).render_as_string(hide_password=True)

@@ -1,0 +1,234 @@
+"""The worker loop: claim a job, run the association core on its detections, store the result.
+
+Each worker is its own process (so numpy and scikit-learn never stall the API) running one job
+at a time in a child process of its own (so a job past its time limit can be killed without
+losing the worker); a heartbeat thread renews the job's lease and reports progress meanwhile.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import socket
+import threading
+import time
+import uuid
+
+from sqlalchemy import Engine
+
+from roadlink.db.engine import make_engine, make_session_factory, transaction
+from roadlink.db.repository import load_detections
+from roadlink.queue.associator_process import (
+    AssociatorProcess,
+    Died,
+    Failed,
+    Stopped,
+    Succeeded,
+    TimedOut,
+)
+from roadlink.queue.jobs import (
+    ClaimedJob,
+    claim_next_job,
+    complete_job,
+    fail_job,
+    has_runnable_job,
+    heartbeat_job,
+    release_job,
+    rescue_expired_jobs,
+)
+from roadlink.queue.wakeup import Wakeup, make_wakeup
+from roadlink.settings import Settings
+
+log = logging.getLogger(__name__)
+
+
+class Worker:
+    """Drains the queue, one job at a time."""
+
+    def __init__(self, settings: Settings, *, engine: Engine | None = None) -> None:
+        self.settings = settings
+        self.engine = engine or make_engine(settings.database_url)
+        self.sessions = make_session_factory(self.engine)
+        self.id = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
+        self.stopping = threading.Event()
+        self.associator_process = AssociatorProcess()
+        self._last_rescue = 0.0
+
+    def run(self, wakeup: Wakeup | None = None) -> None:
+        """Work until `stopping` is set."""
+        wakeup = wakeup or make_wakeup(self.settings.database_url)
+        self.associator_process.start()  # so that the first job does not wait for it
+        log.info("worker %s started", self.id)
+        try:
+            while not self.stopping.is_set():
+                if not self.run_once():
+                    wakeup.wait(self.settings.poll_seconds)
+        finally:
+            wakeup.close()
+            log.info("worker %s stopped", self.id)
+
+    def close(self) -> None:
+        """Stop the associator process (the engine, when given by the caller, is theirs)."""
+        self.associator_process.close()
+
+    def run_once(self) -> bool:
+        """Rescue expired leases when due, then claim and run one job; False if none was queued."""
+        self._rescue_when_due()
+        with self.sessions() as session:
+            if not has_runnable_job(session):
+                return False
+        with transaction(self.sessions) as session:
+            job = claim_next_job(
+                session, worker_id=self.id, lease_seconds=self.settings.lease_seconds
+            )
+        if job is None:
+            return False
+        self.run_job(job)
+        return True
+
+    def _rescue_when_due(self) -> None:
+        # Every worker rescues, so a crashed worker's jobs come back as long as one worker lives.
+        now = time.monotonic()
+        if now - self._last_rescue < self.settings.lease_seconds / 4:
+            return
+        self._last_rescue = now
+        with transaction(self.sessions) as session:
+            requeued, failed = rescue_expired_jobs(session)
+        if requeued or failed:
+            log.warning("rescued expired leases: %d requeued, %d failed", requeued, failed)
+
+    def run_job(self, job: ClaimedJob) -> None:
+        """Run a claimed job to its end: succeeded, failed, queued again, or given up."""
+        started = time.monotonic()
+        limit = self.settings.job_timeout_seconds
+        progress = [0.0]
+        lost = threading.Event()  # cancelled, or rescued by another worker
+        done = threading.Event()
+
+        def record_progress(share: float) -> None:
+            progress[0] = share
+
+        heartbeat = threading.Thread(
+            target=self._heartbeat, args=(job, progress, lost, done), daemon=True
+        )
+        heartbeat.start()
+        try:
+            with transaction(self.sessions) as session:
+                detections = load_detections(
+                    session, deployment_id=job.deployment_id, selection=job.selection
+                )
+            outcome = self.associator_process.run(
+                detections,
+                job.associator,
+                job.params,
+                deadline=started + limit,
+                should_stop=lambda: lost.is_set() or self.stopping.is_set(),
+                on_progress=record_progress,
+            )
+        except Exception as exc:  # loading the detections failed (the database went away)
+            log.exception("job %s could not be run", job.id)
+            self._failed(job, f"{type(exc).__name__}: {exc}", retry=True)
+            return
+        finally:
+            done.set()
+            heartbeat.join()
+        if lost.is_set() or isinstance(outcome, Stopped):
+            self._interrupted(job, lost)
+        elif isinstance(outcome, TimedOut):
+            self._failed(
+                job,
+                f"the job exceeded the time limit of {limit:g} s "
+                "(ROADLINK_JOB_TIMEOUT_SECONDS) and was stopped",
+                retry=False,
+            )
+        elif isinstance(outcome, Died):
+            self._failed(
+                job,
+                f"the associator process died (exit code {outcome.exitcode}), "
+                "e.g. killed for using too much memory",
+                retry=True,
+            )
+        elif isinstance(outcome, Failed):
+            if outcome.retry:
+                log.error("job %s crashed: %s", job.id, outcome.error)
+            self._failed(job, outcome.error, retry=outcome.retry)
+        else:
+            self._succeeded(job, outcome, started)
+
+    def _succeeded(self, job: ClaimedJob, outcome: Succeeded, started: float) -> None:
+        with transaction(self.sessions) as session:
+            stored = complete_job(
+                session,
+                job_id=job.id,
+                worker_id=self.id,
+                result=outcome.result,
+                duration_seconds=time.monotonic() - started,
+            )
+        if stored:
+            log.info("job %s succeeded in %.3f s", job.id, time.monotonic() - started)
+        else:
+            log.info("job %s finished but was no longer ours; result discarded", job.id)
+
+    def _heartbeat(
+        self, job: ClaimedJob, progress: list[float], lost: threading.Event, done: threading.Event
+    ) -> None:
+        while not done.wait(self.settings.heartbeat_seconds):
+            try:
+                with transaction(self.sessions) as session:
+                    ours = heartbeat_job(
+                        session,
+                        job_id=job.id,
+                        worker_id=self.id,
+                        lease_seconds=self.settings.lease_seconds,
+                        progress=progress[0],
+                    )
+            except Exception:  # a transient database error: the next beat tries again
+                log.exception("heartbeat of job %s failed", job.id)
+                continue
+            if not ours:
+                lost.set()
+                return
+
+    def _interrupted(self, job: ClaimedJob, lost: threading.Event) -> None:
+        if lost.is_set():
+            log.info("job %s was cancelled or rescued elsewhere; stopped", job.id)
+            return
+        with transaction(self.sessions) as session:
+            release_job(session, job_id=job.id, worker_id=self.id)
+        log.info("job %s handed back to the queue (worker stopping)", job.id)
+
+    def _failed(self, job: ClaimedJob, error: str, *, retry: bool) -> None:
+        with transaction(self.sessions) as session:
+            state = fail_job(
+                session,
+                job=job,
+                worker_id=self.id,
+                error=error,
+                retry=retry,
+                backoff_seconds=self.settings.retry_backoff_seconds,
+            )
+        log.info("job %s: %s -> %s", job.id, error.splitlines()[0], state)
+
+
+def run_worker_process(settings: Settings) -> None:
+    """Entry point of a worker process: work until SIGTERM or SIGINT, then stop cleanly.
+
+    A job in progress is interrupted at its next progress report and handed back to the queue.
+    """
+    logging.basicConfig(
+        level=settings.log_level.upper(),
+        format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s",
+    )
+    worker = Worker(settings)
+
+    def stop(_signum: int, _frame: object) -> None:
+        worker.stopping.set()
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    try:
+        worker.run()
+    finally:
+        worker.close()
+        worker.engine.dispose()
