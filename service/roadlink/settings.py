@@ -30,7 +30,10 @@ class Settings(BaseSettings):
     host: str = Field(default="127.0.0.1", description="Address the API listens on.")
     port: int = Field(default=8000, ge=0, le=65535, description="Port the API listens on.")
     workers: int = Field(
-        default_factory=_cores, ge=0, description="Worker processes `roadlink serve` starts."
+        default_factory=_cores,
+        ge=0,
+        description="Worker processes `roadlink serve` starts (0 = API only).",
+        json_schema_extra={"shown_default": "the number of cores"},
     )
     lease_seconds: float = Field(
         default=30.0,

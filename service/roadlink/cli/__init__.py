@@ -12,6 +12,6 @@ app = typer.Typer(
 )
 
 # Sub-command modules register themselves on import.
-from roadlink.cli import analysis, keys, locate, reproduce, server, sumo  # noqa: E402,F401
+from roadlink.cli import analysis, config, keys, locate, reproduce, server, sumo  # noqa: E402,F401
 
 __all__ = ["app"]
