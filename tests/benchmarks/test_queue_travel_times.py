@@ -1,5 +1,6 @@
 """benchmarks/queue_travel_times.py: the claim docs/sumo.md makes from it, on the committed case."""
 
+import matplotlib.image
 import numpy as np
 
 from benchmarks import queue_travel_times as study
@@ -30,3 +31,10 @@ def test_the_figure_is_written(tmp_path):
     out = tmp_path / "queue.png"
     study.draw(d, [0, 4], out)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    pixels = matplotlib.image.imread(out)[..., :3]
+    height, width, _ = pixels.shape
+    assert width > 600 and height > 300
+    # Drawn, not blank: a fair share of the canvas is ink, in several colours (one per vehicle).
+    ink = pixels.min(axis=2) < 0.9
+    assert ink.mean() > 0.01
+    assert len(np.unique((pixels[ink] * 8).astype(int), axis=0)) >= 4
