@@ -1,0 +1,99 @@
+"""The package's dependency rules, checked on the source: a layer imports only the layers
+below it, and the core knows nothing of HTTP, SQL, jobs or the command line."""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / "service" / "roadlink"
+
+# What each part of the package may import from roadlink (itself included). A part missing here
+# is an error: a new folder must find its place in ARCHITECTURE.md and in this table.
+ALLOWED = {
+    "association": {"association"},
+    "simulation": {"association", "simulation"},
+    "plots": {"association"},
+    "settings": set(),
+    "configuration": {"settings"},
+    "db": {"association", "db", "settings"},
+    "queue": {"association", "db", "queue", "settings"},
+    "services": {"association", "simulation", "db", "queue", "settings", "services"},
+    "api": {
+        "association",
+        "simulation",
+        "plots",
+        "db",
+        "queue",
+        "settings",
+        "services",
+        "api",
+    },
+    "cli": {
+        "association",
+        "simulation",
+        "plots",
+        "db",
+        "queue",
+        "settings",
+        "configuration",
+        "services",
+        "api",
+        "cli",
+    },
+}
+SHELL_LIBRARIES = {"fastapi", "starlette", "uvicorn", "sqlalchemy", "alembic", "psycopg", "typer"}
+CORE = ("association", "simulation", "plots")
+
+
+def modules() -> Iterator[tuple[str, Path]]:
+    for path in sorted(PACKAGE.rglob("*.py")):
+        relative = path.relative_to(PACKAGE)
+        part = relative.parts[0].removesuffix(".py")
+        if part != "__init__":
+            yield part, path
+
+
+def imported(path: Path) -> set[str]:
+    """Absolute names of the modules `path` imports (relative imports resolved)."""
+    return imported_by(path.read_text(), ["roadlink", *path.relative_to(PACKAGE).parent.parts])
+
+
+def imported_by(source: str, package: list[str]) -> set[str]:
+    names = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = package[: len(package) - node.level + 1] if node.level else []
+            names.add(".".join([*base, *([node.module] if node.module else [])]))
+    return names
+
+
+def roadlink_parts(names: set[str]) -> set[str]:
+    return {name.split(".")[1] for name in names if name.startswith("roadlink.") and "." in name}
+
+
+@pytest.mark.parametrize(("part", "path"), list(modules()), ids=lambda v: str(v))
+def test_a_module_imports_only_the_layers_beneath_it(part: str, path: Path) -> None:
+    assert part in ALLOWED, f"{part} has no place in the layer table"
+    forbidden = roadlink_parts(imported(path)) - ALLOWED[part]
+    assert not forbidden, f"{path.relative_to(PACKAGE)} imports roadlink.{sorted(forbidden)}"
+
+
+@pytest.mark.parametrize("part", CORE)
+def test_the_core_imports_no_web_database_or_command_line_library(part: str) -> None:
+    for path in [p for name, p in modules() if name == part]:
+        libraries = {name.split(".")[0] for name in imported(path)} & SHELL_LIBRARIES
+        assert not libraries, f"{path.relative_to(PACKAGE)} imports {sorted(libraries)}"
+
+
+def test_the_reader_resolves_absolute_relative_and_nested_imports() -> None:
+    source = "import sqlalchemy\nfrom ..db import models\nfrom . import metrics\n"
+    source += "def f():\n    from roadlink.api.errors import ApiProblem\n"
+    names = imported_by(source, ["roadlink", "association"])
+    assert names == {"sqlalchemy", "roadlink.db", "roadlink.association", "roadlink.api.errors"}
+    assert roadlink_parts(names) == {"db", "association", "api"}
