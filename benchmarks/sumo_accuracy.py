@@ -1,6 +1,6 @@
 """Accuracy of every registered associator on realistic traffic simulated by Eclipse SUMO.
 
-Each SUMO scenario (service/roadlink/simulation/sumo.py) is simulated with seeds 0 .. N-1 and every
+Each SUMO scenario (service/roadlink/simulation/sumo/scenarios.py) is simulated with seeds 0 .. N-1 and every
 associator in the registry groups it with its default parameters; supervised ones (the SVMs) are
 given the labels and scored out of fold, as the paper did. The table gives the mean, the standard
 deviation and the worst seed's accuracy; a run longer than `--timeout` seconds is stopped and

@@ -6,6 +6,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from roadlink.simulation.faults import DetectorFaults
+
 
 class SlowZone(BaseModel):
     """A stretch of road where every target drives slower, as in congestion or roadworks."""
@@ -76,6 +78,17 @@ class SimulationConfig(BaseModel):
     timestamp_noise: float = Field(
         default=0.0, ge=0, description="Timestamp measurement error (std, seconds)."
     )
+
+    @property
+    def faults(self) -> DetectorFaults:
+        """The fault settings, as the fault model that every simulator shares takes them."""
+        return DetectorFaults(
+            miss_probability=self.miss_probability,
+            false_alarm_rate=self.false_alarm_rate,
+            duplicate_probability=self.duplicate_probability,
+            velocity_noise=self.velocity_noise,
+            timestamp_noise=self.timestamp_noise,
+        )
 
     @model_validator(mode="after")
     def _ranges(self) -> SimulationConfig:

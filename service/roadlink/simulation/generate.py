@@ -4,7 +4,8 @@ Each target i enters the road (position 0) at t0 ~ U[t_min, t_max] with velocity
 v_max]; its velocity profile g(v0, t0), which the paper leaves unspecified, is here either constant
 or an Ornstein-Uhlenbeck process around v0 (speed wanders and returns, as a driver's does). All
 targets are integrated together on a fixed time step; a sensor records the exact crossing time
-(interpolated within the step) and the velocity then. Faults are applied last.
+(interpolated within the step) and the velocity then. Faults are applied last, by the
+fault model that the SUMO simulator shares (`roadlink.simulation.faults`).
 """
 
 from __future__ import annotations
@@ -15,9 +16,13 @@ import numpy as np
 
 from roadlink.association.detections import CLUTTER, Detections, FloatArray
 from roadlink.simulation.config import SimulationConfig
+from roadlink.simulation.faults import Passages, apply_detector_faults
 
 # A driver may slow to a crawl but never stops for good or reverses: the OU speed is floored.
 MIN_SPEED_SHARE = 0.05
+
+# False alarms come this long (s) before a sensor's first passage or after its last, too.
+FALSE_ALARM_MARGIN = 5.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,14 +54,16 @@ def simulate(
 
     target = np.repeat(np.arange(config.n_targets), sensors.size)
     sensor = np.tile(np.arange(sensors.size), config.n_targets)
-    time, speed = times.ravel(), speeds.ravel()
-    time, speed = _measurement_noise(config, time, speed, rng)
-    target, sensor, time, speed = _miss(config, target, sensor, time, speed, rng)
-    target, sensor, time, speed = _duplicate(config, target, sensor, time, speed, rng)
-    target, sensor, time, speed = _false_alarms(config, sensors, target, sensor, time, speed, rng)
-
-    order = np.lexsort((time, sensor))  # as sensors log them: by sensor, then by time
-    target, sensor, time, speed = target[order], sensor[order], time[order], speed[order]
+    passages = Passages(sensor, times.ravel(), speeds.ravel(), target)
+    passages = _detector_faults(config, sensors, passages, rng)
+    # As sensors log them: by sensor, then by time.
+    order = np.lexsort((passages.time, passages.sensor))
+    target, sensor, time, speed = (
+        passages.target[order],
+        passages.sensor[order],
+        passages.time[order],
+        passages.speed[order],
+    )
     labels = np.where(target >= 0, np.char.add("A", (target + 1).astype(str)), CLUTTER)
     detections = Detections.from_columns(
         sensors[sensor],
@@ -141,77 +148,21 @@ def _zone_factor(config: SimulationConfig, x: FloatArray) -> FloatArray:
     return np.where((x >= zone.start) & (x < zone.end), zone.speed_factor, 1.0)
 
 
-Columns = tuple[np.ndarray, np.ndarray, FloatArray, FloatArray]
-
-
-def _measurement_noise(
-    config: SimulationConfig, time: FloatArray, speed: FloatArray, rng: np.random.Generator
-) -> tuple[FloatArray, FloatArray]:
-    if config.velocity_noise:
-        speed = speed * np.exp(config.velocity_noise * rng.standard_normal(speed.size))
-    if config.timestamp_noise:
-        time = time + config.timestamp_noise * rng.standard_normal(time.size)
-    return time, speed
-
-
-def _miss(
-    config: SimulationConfig,
-    target: np.ndarray,
-    sensor: np.ndarray,
-    time: FloatArray,
-    speed: FloatArray,
-    rng: np.random.Generator,
-) -> Columns:
-    keep = rng.random(time.size) >= config.miss_probability
-    return target[keep], sensor[keep], time[keep], speed[keep]
-
-
-def _duplicate(
-    config: SimulationConfig,
-    target: np.ndarray,
-    sensor: np.ndarray,
-    time: FloatArray,
-    speed: FloatArray,
-    rng: np.random.Generator,
-) -> Columns:
-    """A sensor reporting one passage twice: the copy a little later, its speed a little off."""
-    twice = np.flatnonzero(rng.random(time.size) < config.duplicate_probability)
-    copy_time = time[twice] + rng.uniform(0.0, 0.5, size=twice.size)
-    copy_speed = speed[twice] * (1.0 + 0.02 * rng.standard_normal(twice.size))
-    return (
-        np.concatenate([target, target[twice]]),
-        np.concatenate([sensor, sensor[twice]]),
-        np.concatenate([time, copy_time]),
-        np.concatenate([speed, copy_speed]),
-    )
-
-
-def _false_alarms(
-    config: SimulationConfig,
-    sensors: FloatArray,
-    target: np.ndarray,
-    sensor: np.ndarray,
-    time: FloatArray,
-    speed: FloatArray,
-    rng: np.random.Generator,
-) -> Columns:
-    """Reports of no target, spread uniformly over each sensor's busy period (label -1)."""
-    if not config.false_alarm_rate or time.size == 0:
-        return target, sensor, time, speed
-    parts: list[Columns] = [(target, sensor, time, speed)]
+def _detector_faults(
+    config: SimulationConfig, sensors: FloatArray, passages: Passages, rng: np.random.Generator
+) -> Passages:
+    """The config's faults; a false alarm's speed is any the target could have had there."""
     lo, hi = config.velocity_range
-    for k, position in enumerate(sensors):
-        seen = time[sensor == k]
-        if seen.size == 0:
-            continue
-        count = rng.poisson(config.false_alarm_rate * seen.size)
-        factor = float(_zone_factor(config, np.array([position]))[0])
-        parts.append(
-            (
-                np.full(count, -1),
-                np.full(count, k),
-                rng.uniform(seen.min() - 5.0, seen.max() + 5.0, size=count),
-                rng.uniform(lo, hi, size=count) * factor,
-            )
-        )
-    return tuple(np.concatenate(cols) for cols in zip(*parts, strict=True))  # type: ignore[return-value]
+    factor = _zone_factor(config, sensors)
+
+    def speeds(k: int, count: int, _seen: FloatArray, rng: np.random.Generator) -> FloatArray:
+        return rng.uniform(lo, hi, size=count) * factor[k]
+
+    return apply_detector_faults(
+        passages,
+        config.faults,
+        rng,
+        false_alarm_speeds=speeds,
+        clutter=-1,
+        false_alarm_margin=FALSE_ALARM_MARGIN,
+    )

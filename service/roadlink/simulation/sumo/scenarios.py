@@ -1,0 +1,207 @@
+"""What a SUMO run simulates: a straight road, its sensors, its traffic and its detectors' faults,
+and the named scenarios the benchmarks and tests use."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from roadlink.simulation.faults import DetectorFaults
+
+
+class VehicleClass(BaseModel):
+    """One kind of vehicle in the traffic mix."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field(pattern=r"^[A-Za-z][A-Za-z0-9_]*$", description="vType id; labels start so.")
+    share: float = Field(gt=0, le=1, description="Share of the demand.")
+    vclass: str = Field(default="passenger", description="SUMO vehicle class.")
+    length: float = Field(default=4.5, gt=0, description="Length (m).")
+    max_speed: float = Field(default=50.0, gt=0, description="Top speed of the vehicle (m/s).")
+    speed_factor: float = Field(
+        default=1.0, gt=0, description="Mean desired speed as a share of the speed limit."
+    )
+    speed_deviation: float = Field(
+        default=0.1, ge=0, le=1, description="Spread (std) of the desired-speed factor."
+    )
+    accel: float = Field(default=2.6, gt=0, description="Maximum acceleration (m/s^2).")
+    decel: float = Field(default=4.5, gt=0, description="Comfortable deceleration (m/s^2).")
+    sigma: float = Field(
+        default=0.5, ge=0, le=1, description="Krauss driver imperfection (random slowing)."
+    )
+
+
+CAR = VehicleClass(name="car", share=1.0, max_speed=50.0, speed_deviation=0.12)
+TRUCK = VehicleClass(
+    name="truck",
+    share=1.0,
+    vclass="truck",
+    length=12.0,
+    # Speed limiters hold trucks near 90 km/h, each a little differently.
+    max_speed=26.4,
+    speed_factor=0.75,
+    speed_deviation=0.05,
+    accel=1.0,
+    decel=4.0,
+)
+
+
+def mix(**shares: float) -> list[VehicleClass]:
+    """The standard car and truck classes in the given shares, e.g. ``mix(car=0.9, truck=0.1)``."""
+    known = {"car": CAR, "truck": TRUCK}
+    return [known[name].model_copy(update={"share": share}) for name, share in shares.items()]
+
+
+class Bottleneck(BaseModel):
+    """A stretch with fewer lanes (a lane drop, as at roadworks) and/or a lower speed limit."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    start: float = Field(ge=0, description="Where it begins (m from the road's start).")
+    end: float = Field(description="Where it ends (m).")
+    lanes: int | None = Field(default=None, ge=1, description="Lanes in it (None: unchanged).")
+    speed_limit: float | None = Field(
+        default=None, gt=0, description="Speed limit in it (m/s; None: unchanged)."
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Bottleneck:
+        if self.end <= self.start:
+            raise ValueError("bottleneck end must be beyond its start")
+        if self.lanes is None and self.speed_limit is None:
+            raise ValueError("a bottleneck needs fewer lanes or a lower speed limit")
+        return self
+
+
+class SumoScenario(BaseModel):
+    """A straight road, its sensors, its traffic, and what the detectors get wrong."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    description: str = Field(default="", description="What the scenario models.")
+    road_length: float = Field(default=3000.0, gt=0, le=50_000, description="Road length (m).")
+    lanes: int = Field(default=3, ge=1, le=6, description="Lanes of the road.")
+    speed_limit: float = Field(default=33.33, gt=0, description="Speed limit (m/s).")
+    sensor_positions: list[float] = Field(
+        default=[200.0 + 250.0 * i for i in range(11)],
+        min_length=2,
+        description="Sensor positions along the road (m).",
+    )
+    demand: float = Field(default=1500.0, gt=0, le=20_000, description="Vehicles per hour.")
+    vehicles: list[VehicleClass] = Field(
+        default_factory=lambda: mix(car=0.9, truck=0.1), min_length=1
+    )
+    bottleneck: Bottleneck | None = None
+    warmup: float = Field(
+        default=200.0, ge=0, description="Simulated time before detections are kept (s)."
+    )
+    duration: float = Field(
+        default=240.0, gt=0, le=7200, description="Length of the kept time window (s)."
+    )
+    step_length: float = Field(default=0.5, gt=0, le=1, description="SUMO time step (s).")
+    faults: DetectorFaults = Field(default_factory=DetectorFaults)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SumoScenario:
+        positions = self.sensor_positions
+        if len(set(positions)) != len(positions):
+            raise ValueError("sensor_positions must be distinct")
+        if min(positions) <= 0 or max(positions) >= self.road_length:
+            raise ValueError("sensor_positions must lie strictly inside the road")
+        if self.bottleneck is not None and self.bottleneck.end >= self.road_length:
+            raise ValueError("the bottleneck must end before the road does")
+        return self
+
+
+def _spaced(first: float, gaps: Sequence[float]) -> list[float]:
+    return [first + float(g) for g in np.cumsum([0.0, *gaps])]
+
+
+SUMO_SCENARIOS: dict[str, SumoScenario] = {
+    "sumo-freeflow": SumoScenario(
+        description="3 lanes, 1500 veh/h, 10% trucks: free flow with overtaking on every lane.",
+        demand=1500.0,
+    ),
+    "sumo-dense": SumoScenario(
+        description="3 lanes, 4500 veh/h, 10% trucks: dense but flowing traffic, short headways "
+        "and many lane changes.",
+        demand=4500.0,
+        duration=120.0,
+    ),
+    "sumo-bottleneck": SumoScenario(
+        description="3 lanes, 2400 veh/h into a lane drop to 1 lane at 80 km/h (roadworks at "
+        "2.0-2.6 km): a queue grows back from the drop past the middle sensors, with "
+        "stop-and-go waves (speeds near 0) inside it and free flow upstream of its tail.",
+        demand=2400.0,
+        bottleneck=Bottleneck(start=2000.0, end=2600.0, lanes=1, speed_limit=22.22),
+        warmup=400.0,
+        duration=240.0,
+    ),
+    "sumo-irregular": SumoScenario(
+        description="2 lanes, 2000 veh/h, 30% trucks, irregular sensor spacing (30 m to 700 m).",
+        lanes=2,
+        demand=2000.0,
+        vehicles=mix(car=0.7, truck=0.3),
+        sensor_positions=_spaced(150.0, [30, 420, 700, 60, 260, 540, 35, 380, 90]),
+    ),
+    "sumo-faulty": SumoScenario(
+        description="sumo-dense seen by faulty detectors: 5% missed, 5% false alarms, 2% "
+        "duplicated, speed error 3%, timestamp error 0.05 s.",
+        demand=4500.0,
+        duration=120.0,
+        faults=DetectorFaults(
+            miss_probability=0.05,
+            false_alarm_rate=0.05,
+            duplicate_probability=0.02,
+            velocity_noise=0.03,
+            timestamp_noise=0.05,
+        ),
+    ),
+}
+
+
+def sumo_scenario(name: str, **overrides: object) -> SumoScenario:
+    """A named scenario with some settings changed (validated again)."""
+    try:
+        base = SUMO_SCENARIOS[name]
+    except KeyError:
+        known = ", ".join(SUMO_SCENARIOS)
+        raise ValueError(f"unknown SUMO scenario '{name}'; known: {known}") from None
+    return SumoScenario.model_validate({**base.model_dump(), **overrides})
+
+
+def sensor_ids(scenario: SumoScenario) -> dict[str, float]:
+    """Sensor id -> position, named S1, S2, ... in road order (as the simulator names them)."""
+    return {f"S{k + 1}": p for k, p in enumerate(sorted(scenario.sensor_positions))}
+
+
+@dataclass(frozen=True)
+class RoadSegment:
+    """One SUMO edge of the road: a stretch with a constant lane count and speed limit."""
+
+    edge: str
+    start: float
+    end: float
+    lanes: int
+    speed_limit: float
+
+
+def road_segments(scenario: SumoScenario) -> list[RoadSegment]:
+    """The road cut into edges where the lane count or the speed limit changes."""
+    neck = scenario.bottleneck
+    normal = (scenario.lanes, scenario.speed_limit)
+    if neck is None:
+        stretches = [(0.0, scenario.road_length, *normal)]
+    else:
+        narrow = (neck.lanes or scenario.lanes, neck.speed_limit or scenario.speed_limit)
+        stretches = [
+            (0.0, neck.start, *normal),
+            (neck.start, neck.end, *narrow),
+            (neck.end, scenario.road_length, *normal),
+        ]
+    kept = [s for s in stretches if s[1] > s[0]]  # a bottleneck may start at 0
+    return [RoadSegment(f"e{k}", *stretch) for k, stretch in enumerate(kept)]
