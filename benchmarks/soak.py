@@ -1,0 +1,245 @@
+"""Soak on loopback: many clients mix everything a gateway and an analyst do, for minutes, while a
+probe checks that the API keeps answering `/healthz` quickly and never answers 5xx.
+
+    .venv/bin/python -m benchmarks.soak                         # 16 clients for 180 s
+    .venv/bin/python -m benchmarks.soak --clients 16 --seconds 20 --json
+
+A fresh `roadlink serve` (SQLite, 2 workers, authentication on, rate limits raised so that the
+mix, not the limiter, is measured) gets, from each client in turn:
+- a JSON or a CSV batch with an `Idempotency-Key`, and now and then the same post again at once
+  from two threads (a gateway retrying while its first try is in flight);
+- a job over the batches it posted, also under an `Idempotency-Key`, posted twice;
+- `GET /v1/jobs/{id}/result?wait=S`, the result as CSV, its plot and positions.
+A probe requests `/healthz` every 0.2 s throughout. Reports the status counts, every 5xx and
+transport error, and the probe's latency percentiles; exits 1 when any answer was 5xx or lost, or
+when the probe's slowest answer exceeded `--healthz-limit` seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import tempfile
+import threading
+import time
+import uuid
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+from roadlink.association.csvio import write_detections_csv
+from roadlink.simulation import preset, simulate
+from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
+
+PROBE_INTERVAL = 0.2
+
+
+@dataclass
+class Tally:
+    """What the clients and the probe saw; shared by their threads."""
+
+    statuses: Counter[str] = field(default_factory=Counter)
+    failures: list[str] = field(default_factory=list)
+    probe_seconds: list[float] = field(default_factory=list)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def record(self, what: str, answer: httpx.Response | None, error: str = "") -> None:
+        with self.lock:
+            if answer is None:
+                self.statuses[f"{what} lost"] += 1
+                self.failures.append(f"{what}: {error}")
+                return
+            self.statuses[f"{what} {answer.status_code}"] += 1
+            if answer.status_code >= 500:
+                self.failures.append(f"{what}: {answer.status_code} {answer.text[:300]}")
+
+
+def _bodies(seed: int) -> tuple[list[dict[str, object]], str]:
+    """One paper-size batch as JSON rows and as CSV, with detection ids unique to `seed`."""
+    detections = simulate(preset("large"), seed=seed).detections
+    csv_text = write_detections_csv(detections)
+    rows = [
+        {
+            "position": float(p),
+            "velocity": float(v),
+            "timestamp": float(t),
+            "sensor_id": str(s),
+        }
+        for p, v, t, s in zip(
+            detections.position,
+            detections.velocity,
+            detections.timestamp,
+            detections.sensor_id,
+            strict=True,
+        )
+    ]
+    return rows, csv_text
+
+
+def _call(tally: Tally, what: str, http: httpx.Client, method: str, path: str, **kw: object):
+    try:
+        answer = http.request(method, path, **kw)  # type: ignore[arg-type]
+    except httpx.HTTPError as exc:
+        tally.record(what, None, repr(exc))
+        return None
+    tally.record(what, answer)
+    return answer
+
+
+def _twice_at_once(
+    tally: Tally, what: str, http: httpx.Client, path: str, **kw: object
+) -> list[httpx.Response]:
+    """The same post from two threads at once, as a retrying gateway sends it."""
+    answers: list[httpx.Response] = []
+    barrier = threading.Barrier(2)
+
+    def post() -> None:
+        barrier.wait()
+        answer = _call(tally, what, http, "POST", path, **kw)
+        if answer is not None:
+            answers.append(answer)
+
+    threads = [threading.Thread(target=post) for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    return answers
+
+
+def _client(
+    k: int, url: str, key: str, deployment: str, stop_at: float, wait: float, tally: Tally
+) -> None:
+    rng = random.Random(k)
+    headers = {"Authorization": f"Bearer {key}"}
+    with httpx.Client(base_url=url, headers=headers, timeout=wait + 60) as http:
+        n = 0
+        while time.monotonic() < stop_at:
+            rows, csv_text = _bodies(seed=1000 * k + n)
+            n += 1
+            batch_path = f"/v1/deployments/{deployment}/batches"
+            retry = {"Idempotency-Key": uuid.uuid4().hex}
+            if rng.random() < 0.5:
+                answers = _twice_at_once(
+                    tally, "batch json", http, batch_path, json={"detections": rows}, headers=retry
+                )
+            else:
+                answers = _twice_at_once(
+                    tally,
+                    "batch csv",
+                    http,
+                    batch_path,
+                    content=csv_text,
+                    headers={**retry, "content-type": "text/csv"},
+                )
+            created = [a for a in answers if a.status_code in (200, 201)]
+            if not created:
+                continue
+            batch = created[0].json()["id"]
+            job_body = {"batch_id": batch, "associator": "assignment"}
+            answers = _twice_at_once(
+                tally,
+                "job",
+                http,
+                "/v1/jobs",
+                json=job_body,
+                headers={"Idempotency-Key": uuid.uuid4().hex},
+            )
+            jobs = [a for a in answers if a.status_code in (200, 202)]
+            if not jobs:
+                continue
+            job = jobs[0].json()["id"]
+            _call(
+                tally, "result wait", http, "GET", f"/v1/jobs/{job}/result", params={"wait": wait}
+            )
+            _call(
+                tally, "result csv", http, "GET", f"/v1/jobs/{job}/result", params={"format": "csv"}
+            )
+            _call(tally, "plot", http, "GET", f"/v1/jobs/{job}/plot")
+            _call(tally, "positions", http, "GET", f"/v1/jobs/{job}/positions", params={"t": 10})
+
+
+def _probe(url: str, stop_at: float, tally: Tally) -> None:
+    with httpx.Client(base_url=url, timeout=30) as http:
+        while time.monotonic() < stop_at:
+            began = time.perf_counter()
+            answer = _call(tally, "healthz", http, "GET", "/healthz")
+            if answer is not None:
+                with tally.lock:
+                    tally.probe_seconds.append(time.perf_counter() - began)
+            time.sleep(PROBE_INTERVAL)
+
+
+def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
+    """Start a server, soak it; the figures (see the module's docstring)."""
+    directory = Path(tempfile.mkdtemp(prefix="roadlink-soak-"))
+    env = sqlite_env(
+        directory,
+        ROADLINK_RATE_LIMIT_PER_SECOND="10000",
+        ROADLINK_RATE_LIMIT_BURST="10000",
+    )
+    admin = roadlink("keys", "create", "--scope", "admin", env=env, cwd=directory).strip()
+    server = LiveServer(directory, env, free_port())
+    server.start(workers=2)
+    tally = Tally()
+    try:
+        with httpx.Client(
+            base_url=server.url, headers={"Authorization": f"Bearer {admin}"}
+        ) as http:
+            answer = http.post("/v1/deployments", json={"name": "soak"})
+            answer.raise_for_status()
+            deployment = answer.json()["id"]
+        stop_at = time.monotonic() + seconds
+        threads = [threading.Thread(target=_probe, args=(server.url, stop_at, tally))]
+        threads += [
+            threading.Thread(
+                target=_client, args=(k, server.url, admin, deployment, stop_at, wait, tally)
+            )
+            for k in range(clients)
+        ]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+    finally:
+        server.stop()
+    probe = np.array(tally.probe_seconds) if tally.probe_seconds else np.array([np.nan])
+    return {
+        "clients": clients,
+        "seconds": seconds,
+        "requests": sum(tally.statuses.values()),
+        "statuses": dict(sorted(tally.statuses.items())),
+        "failures": tally.failures[:20],
+        "failure_count": len(tally.failures),
+        "healthz_p50_ms": round(float(np.percentile(probe, 50)) * 1000, 1),
+        "healthz_p99_ms": round(float(np.percentile(probe, 99)) * 1000, 1),
+        "healthz_max_ms": round(float(probe.max()) * 1000, 1),
+        "cpus": os.cpu_count(),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--clients", type=int, default=16)
+    parser.add_argument("--seconds", type=float, default=180.0)
+    parser.add_argument("--wait", type=float, default=10.0, help="?wait= of the result requests")
+    parser.add_argument("--healthz-limit", type=float, default=0.1)
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    args = parser.parse_args(argv)
+    figures = run_soak(args.clients, args.seconds, args.wait)
+    if args.json:
+        print(json.dumps(figures, indent=2))
+    else:
+        for name, value in figures.items():
+            print(f"{name}: {value}")
+    slow = figures["healthz_max_ms"] > args.healthz_limit * 1000  # type: ignore[operator]
+    return 1 if figures["failure_count"] or slow else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
