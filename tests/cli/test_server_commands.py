@@ -14,6 +14,7 @@ def test_worker_takes_its_process_count_from_roadlink_workers(tmp_path):
     assert "ROADLINK_WORKERS" in result.stderr
 
 
-def test_worker_option_is_checked():
+def test_worker_option_is_checked_and_the_error_names_it():
     result = runner.invoke(app, ["worker", "--workers", "0"])
     assert result.exit_code == 2
+    assert "Invalid value for '--workers': 0 is not in the range x>=1" in result.stderr
