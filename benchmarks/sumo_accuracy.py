@@ -1,10 +1,12 @@
 """Accuracy of every registered associator on realistic traffic simulated by Eclipse SUMO.
 
-Each SUMO scenario (service/roadlink/simulation/sumo/scenarios.py) is simulated with seeds 0 .. N-1 and every
-associator in the registry groups it with its default parameters; supervised ones (the SVMs) are
-given the labels and scored out of fold, as the paper did. The table gives the mean, the standard
-deviation and the worst seed's accuracy; a run longer than `--timeout` seconds is stopped and
-counted as timed out (metrics null in the JSON). Writes benchmarks/results/sumo_accuracy.json.
+Each SUMO scenario (service/roadlink/simulation/sumo/scenarios.py) is simulated with seeds
+0 .. N-1 and every associator in the registry groups it with its default parameters; supervised
+ones (the SVMs) are given the labels and scored out of fold, as the paper did. The naive
+references of benchmarks/references.py (`fifo`, `chain`) can be added with `--associators`.
+The table gives the mean, the standard deviation and the worst seed's accuracy; a run longer
+than `--timeout` seconds is stopped and counted as timed out (metrics null in the JSON).
+Writes benchmarks/results/sumo_accuracy.json.
 
     pip install 'roadlink[sumo]'
     python benchmarks/sumo_accuracy.py --seeds 5 --export /work/sumo-data
@@ -31,10 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.references import REFERENCES
 from roadlink.association import associate
 from roadlink.association.associators import ASSOCIATORS
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.association.detections import CLUTTER, Detections
+from roadlink.association.metrics import score_grouping
 from roadlink.simulation.sumo import (
     SUMO_SCENARIOS,
     Bottleneck,
@@ -46,6 +50,11 @@ from roadlink.simulation.sumo import (
 )
 
 RESULTS = Path(__file__).parent / "results" / "sumo_accuracy.json"
+
+
+def _spaced(first: float, gaps: list[int]) -> list[float]:
+    return [first + float(g) for g in np.cumsum([0, *gaps])]
+
 
 VALIDATION: dict[str, SumoScenario] = {
     "val-urban": sumo_scenario(
@@ -86,6 +95,26 @@ VALIDATION: dict[str, SumoScenario] = {
         demand=2000.0,
         vehicles=mix(car=0.5, truck=0.5),
         faults=DetectorFaults(miss_probability=0.03, false_alarm_rate=0.02, velocity_noise=0.01),
+    ),
+    "val-queue-irregular": sumo_scenario(
+        "sumo-freeflow",
+        description="3 lanes, 3000 veh/h, sensors 60-600 m apart, a lane drop to 1 lane at "
+        "2.9-3.4 km, beyond the last sensor: a queue over irregularly spaced sensors.",
+        demand=3000.0,
+        sensor_positions=_spaced(150.0, [60, 600, 250, 90, 400, 180, 520, 120, 300]),
+        bottleneck=Bottleneck(start=2900.0, end=3400.0, lanes=1, speed_limit=11.0),
+        road_length=3800.0,
+        warmup=900.0,
+        duration=300.0,
+    ),
+    "val-congestion": sumo_scenario(
+        "sumo-freeflow",
+        description="2 lanes, 1800 veh/h through a slow zone limited to 8 m/s at 0.8-2.0 km.",
+        lanes=2,
+        demand=1800.0,
+        bottleneck=Bottleneck(start=800.0, end=2000.0, speed_limit=8.0),
+        warmup=400.0,
+        duration=300.0,
     ),
     "val-lanedrop": sumo_scenario(
         "sumo-freeflow",
@@ -148,7 +177,11 @@ def timed_accuracy(
 
 
 def _metrics(detections: Detections, associator: str) -> dict[str, float]:
-    metrics = associate(detections, associator).metrics
+    if associator in REFERENCES:
+        groups = REFERENCES[associator](detections.without_labels())
+        metrics = score_grouping(groups, detections.target)
+    else:
+        metrics = associate(detections, associator).metrics
     assert metrics is not None  # SUMO's detections are all labelled
     return metrics.to_dict()
 
@@ -185,7 +218,13 @@ def main() -> None:
     variants.add_argument(
         "--speed-noise", action="store_true", help="Run the SPEED_NOISE variants instead."
     )
-    parser.add_argument("--associators", nargs="+", default=list(ASSOCIATORS))
+    parser.add_argument(
+        "--associators",
+        nargs="+",
+        default=list(ASSOCIATORS),
+        help=f"Associators, or the naive references {', '.join(REFERENCES)} "
+        "(benchmarks/references.py).",
+    )
     parser.add_argument("--data", type=Path, help="Read the cases' CSVs from here (no SUMO).")
     parser.add_argument("--export", type=Path, help="Also write the simulated cases' CSVs here.")
     parser.add_argument(

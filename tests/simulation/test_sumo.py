@@ -42,6 +42,10 @@ MEASURED_ASSIGNMENT_ACCURACY = {
     "sumo-bottleneck": 0.525,
     "sumo-irregular": 0.943,
     "sumo-faulty": 0.770,
+    # Queues, where `assignment` is weakest: the naive `chain` of benchmarks/references.py scores
+    # 43 % on both (seeds 0-4).
+    "sumo-queue": 0.297,
+    "sumo-stopgo": 0.243,
 }
 MARGIN = 0.03
 

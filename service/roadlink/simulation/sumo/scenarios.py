@@ -148,6 +148,24 @@ SUMO_SCENARIOS: dict[str, SumoScenario] = {
         vehicles=mix(car=0.7, truck=0.3),
         sensor_positions=_spaced(150.0, [30, 420, 700, 60, 260, 540, 35, 380, 90]),
     ),
+    "sumo-queue": SumoScenario(
+        description="3 lanes, 3000 veh/h into a lane drop to 1 lane at 30 km/h (2.0-2.6 km), "
+        "after a 15-minute warm-up: the queue reaches back past most sensors, vehicles crawl "
+        "and stop in it, and the last sensor sees them leave.",
+        demand=3000.0,
+        bottleneck=Bottleneck(start=2000.0, end=2600.0, lanes=1, speed_limit=8.33),
+        warmup=900.0,
+        duration=300.0,
+    ),
+    "sumo-stopgo": SumoScenario(
+        description="2 lanes, 2400 veh/h into a 1.2 km zone limited to 4 m/s (1.1-2.3 km): "
+        "the queue it causes reaches back past most sensors: eight see stop-and-go at 2-3 m/s.",
+        lanes=2,
+        demand=2400.0,
+        bottleneck=Bottleneck(start=1100.0, end=2300.0, speed_limit=4.0),
+        warmup=500.0,
+        duration=300.0,
+    ),
     "sumo-faulty": SumoScenario(
         description="sumo-dense seen by faulty detectors: 5% missed, 5% false alarms, 2% "
         "duplicated, speed error 3%, timestamp error 0.05 s.",
