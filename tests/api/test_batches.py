@@ -60,15 +60,18 @@ def test_invalid_detections_name_row_and_field_and_leave_no_trace(
     assert {(e["row"], e["field"]) for e in problem["errors"]} == {
         (9, "position"),
         (10, "colour"),
-    }  # shape first: a missing field and an unknown one
+        (7, "timestamp"),
+    }  # shape first: a missing field, an unknown one, and a number sent as text
+    assert "must be a JSON number, got 'NaN'" in str(problem["errors"])
     del rows[9]["colour"]
     rows[8]["position"] = 800.0
+    rows[6]["timestamp"] = 1e13
     problem = assert_problem(client.post(url, json={"detections": rows, "associate": {}}), 422)
     errors = {(e["row"], e["field"]): e for e in problem["errors"]}
     assert set(errors) == {(3, "velocity"), (7, "timestamp")}
     assert errors[(3, "velocity")]["pointer"] == "/detections/2/velocity"
     assert "> 0" in errors[(3, "velocity")]["message"]
-    assert "finite" in errors[(7, "timestamp")]["message"]
+    assert "beyond the limit" in errors[(7, "timestamp")]["message"]
     assert "row 3" in problem["detail"]
     assert _counts(engine) == (0, 0, 0)
 
@@ -82,7 +85,12 @@ def test_csv_problems_name_the_row(
         client.post(url, content=text, headers={"content-type": "text/csv"}), 422
     )
     assert problem["errors"] == [
-        {"row": 2, "field": "velocity", "pointer": None, "message": "must be a number, got 'zero'"}
+        {
+            "row": 2,
+            "field": "velocity",
+            "pointer": None,
+            "message": "must be a number in plain decimal notation, got 'zero'",
+        }
     ]
     problem = assert_problem(
         client.post(url, content="velocity,timestamp\n1,2\n", headers={"content-type": "text/csv"}),

@@ -165,6 +165,10 @@ def test_who_may_see_a_page(
         f"{prefix}.{int(expires) + 3600}.{signature}",
         f"{prefix}.{expires}.{signature[:-2]}AA",
         f"{prefix}.{expires}",
+        f"{prefix}.\u00b2.{signature}",  # '²'.isdigit() is True; int('²') fails
+        f"{prefix}.\u0663\u0660.{signature}",  # Arabic-Indic digits: int() reads 30
+        f"{prefix}.{int(expires):_}.{signature}",  # int() reads underscores
+        f"{prefix}. {expires}.{signature}",
         "garbage",
         "",
     ):

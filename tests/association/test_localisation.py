@@ -13,6 +13,7 @@ from roadlink.association.localisation import (
     build_track,
     positions_at,
     segment_stats,
+    target_index,
     target_track,
     target_tracks,
     target_trajectory,
@@ -197,3 +198,10 @@ def test_hermite_follows_the_true_trajectory_closer_than_straight_lines(preset_n
     assert np.quantile(hermite / scale, 0.99) < 0.22
     assert np.median(hermite) < 0.6 * np.median(linear)
     assert np.quantile(hermite, 0.99) < 0.7 * np.quantile(linear, 0.99)
+
+
+def test_targets_are_named_as_in_the_result_and_nothing_else():
+    assert [target_index(name, 12) for name in ("T1", "t12", "3", " T2 ")] == [0, 11, 2, 1]
+    for name in ("T0", "T13", "T\u00b2", "T\u0663", "T1_0", "T+1", "T-1", "", "T"):
+        with pytest.raises(KeyError, match=r"known: T1\.\.T12"):
+            target_index(name, 12)

@@ -39,6 +39,15 @@ def _with(rows: list[dict[str, Any]], row: int, **changes: Any) -> bytes:
     return json.dumps({"detections": changed}).encode()
 
 
+def _replace_cell(csv: str, row: int, column: int, value: str) -> str:
+    """The CSV with one cell (data row `row`, from 1; column index) replaced, quoted if needed."""
+    lines = csv.splitlines()
+    cells = lines[row].split(",")
+    cells[column] = f'"{value}"' if "," in value else value
+    lines[row] = ",".join(cells)
+    return "\n".join(lines) + "\n"
+
+
 def corpus(rows: list[dict[str, Any]], csv: str) -> Iterator[Bad]:
     raw = json.dumps({"detections": rows})
     yield Bad("NaN velocity", _with(rows, 3, velocity="NaN"), where=(3, "velocity"))
@@ -79,6 +88,18 @@ def corpus(rows: list[dict[str, Any]], csv: str) -> Iterator[Bad]:
         where=(1, "timestamp"),
     )
     yield Bad("unknown field", _with(rows, 15, colour="red"), where=(15, "colour"))
+    # Numbers are JSON numbers; text is refused even when Python's float() would read it.
+    for text in ("30", "3_0", "\u0663\u0660", "1e1"):
+        yield Bad(
+            f"velocity as text {text!r}", _with(rows, 16, velocity=text), where=(16, "velocity")
+        )
+    # Valid one by one, absurd together: crossing the 900 m at 1e-300 m/s overflows.
+    yield Bad(
+        "velocity too slow for the span",
+        _with(rows, 17, velocity=1e-300),
+        where=(17, "velocity"),
+        says=["too slow"],
+    )
     yield Bad("detections not a list", b'{"detections": {"position": 0}}', says=["shape"])
     yield Bad("no detections", b'{"detections": []}', says=["no detections"])
     yield Bad("JSON array body", b"[1, 2, 3]", says=["shape"])
@@ -109,6 +130,20 @@ def corpus(rows: list[dict[str, Any]], csv: str) -> Iterator[Bad]:
         csv.replace(csv.splitlines()[3].split(",")[1], "abc", 1).encode(),
         content_type="text/csv",
         where=(3, "velocity"),
+    )
+    for cell in ("30_0", "\u0663\u0660", " 1e-300", "0x1e", "1,5"):
+        yield Bad(
+            f"CSV velocity {cell!r}",
+            _replace_cell(csv, row=3, column=1, value=cell).encode(),
+            content_type="text/csv",
+            where=(3, "velocity"),
+        )
+    yield Bad(
+        "CSV velocity too slow for the span",
+        _replace_cell(csv, row=4, column=1, value="1e-300").encode(),
+        content_type="text/csv",
+        where=(4, "velocity"),
+        says=["too slow"],
     )
     yield Bad("CSV ragged row", (csv + "1.0,2.0\n").encode(), content_type="text/csv")
     yield Bad("CSV header only", b"position,velocity,timestamp\n", content_type="text/csv")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from roadlink.association.numbers import parse_unsigned
+
 
 class BodyLimitMiddleware:
     """Rejects a body whose Content-Length exceeds `limit`, and stops a chunked body that
@@ -25,7 +27,8 @@ class BodyLimitMiddleware:
             await self.app(scope, receive, send)
             return
         for name, value in scope.get("headers", ()):
-            if name == b"content-length" and value.isdigit() and int(value) > self.limit:
+            declared = parse_unsigned(value, max_digits=19) if name == b"content-length" else None
+            if declared is not None and declared > self.limit:
                 await self._refuse(scope, send)
                 return
         received = 0

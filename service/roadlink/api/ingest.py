@@ -69,13 +69,14 @@ def parse_json_batch(
 
 
 def _well_formed(rows: list[dict[str, Any]], columns: dict[str, list[Any]]) -> bool:
-    """True when no row has an unknown field, lacks a required one or has a text field that is
-    not text: the common case, checked column by column at C speed (the row-by-row check
-    that names each problem runs only when this is false)."""
+    """True when no row has an unknown field, a number field that is not a JSON number (text
+    such as "30" included) or a text field that is not text: the common case, checked column by
+    column at C speed (the row-by-row check that names each problem runs only when this is
+    false)."""
     known = frozenset(DETECTION_FIELDS)
     return (
         all(map(known.issuperset, rows))
-        and not any(None in columns[name] for name in REQUIRED_FIELDS)
+        and all(set(map(type, columns[name])) <= {int, float} for name in REQUIRED_FIELDS)
         and all(set(map(type, columns[name])) <= {str, type(None)} for name in DETECTION_FIELDS[3:])
     )
 
@@ -87,8 +88,11 @@ def _shape_problems(rows: list[dict[str, Any]]) -> list[ProblemItem]:
         for name in row.keys() - DETECTION_FIELDS:
             items.append(_row_item(i, name, f"unknown field; known: {', '.join(DETECTION_FIELDS)}"))
         for name in REQUIRED_FIELDS:
-            if row.get(name) is None:
+            value = row.get(name)
+            if value is None:
                 items.append(_row_item(i, name, "is required"))
+            elif type(value) not in (int, float):  # bool is an int to Python, not to JSON
+                items.append(_row_item(i, name, f"must be a JSON number, got {value!r}"))
         for name in DETECTION_FIELDS[3:]:
             value = row.get(name)
             if value is not None and not isinstance(value, str):

@@ -25,6 +25,7 @@ from datetime import UTC, datetime
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from roadlink.association.numbers import parse_unsigned
 from roadlink.db.models import ApiKey
 
 DEFAULT_LIFETIME_SECONDS = 3600
@@ -44,9 +45,9 @@ def token_key(
     forged, for another job, expired, or its key is unknown or revoked."""
     prefix, _, rest = token.partition(".")
     expires_text, _, signature = rest.partition(".")
-    if not (prefix and expires_text.isdigit() and signature) or len(expires_text) > 12:
+    expires = parse_unsigned(expires_text, max_digits=12)
+    if not (prefix and signature) or expires is None:
         return None
-    expires = int(expires_text)
     if expires <= (now or datetime.now(UTC)).timestamp():
         return None
     key = session.scalars(select(ApiKey).where(ApiKey.prefix == prefix)).first()

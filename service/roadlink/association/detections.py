@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from roadlink.association.numbers import PLAIN_DECIMAL_HINT, strictly_parsable
+
 CLUTTER = "clutter"
 """The reserved target label of a false alarm: a detection of no target."""
 
@@ -102,6 +104,9 @@ class Detections:
             )
         if problems:
             raise DetectionError(problems)
+        _check_travel_times(pos, vel, problems)
+        if problems:
+            raise DetectionError(problems)
 
         sensors = _sensor_ids(pos, sensor_id, problems)
         det_ids = _detection_ids(n, detection_id, problems)
@@ -183,7 +188,10 @@ def _float_column(name: str, values: object, problems: list[Problem]) -> FloatAr
         for i, value in enumerate(raw):
             number = _as_floats([value])
             if number is None:
-                problems.append(Problem(i + 1, name, f"must be a number, got {value!r}"))
+                shown = value.item() if isinstance(value, np.generic) else value
+                problems.append(
+                    Problem(i + 1, name, f"must be a number in {PLAIN_DECIMAL_HINT}, got {shown!r}")
+                )
                 not_number[i] = True
             else:
                 out[i] = number[0]
@@ -200,14 +208,45 @@ def _float_column(name: str, values: object, problems: list[Problem]) -> FloatAr
     return out
 
 
+def _check_travel_times(
+    position: FloatArray, velocity: FloatArray, problems: list[Problem]
+) -> None:
+    """Values valid one by one can still be absurd together: a speed so low that crossing the
+    batch's span of road takes longer than any time roadlink represents (velocity 1e-300 over
+    1e12 m overflows to infinity). Back-projection divides by speed, so refuse it here."""
+    if position.size == 0:
+        return
+    span = float(position.max() - position.min())
+    with np.errstate(divide="ignore", over="ignore"):
+        crossing = span / velocity
+    for row in np.flatnonzero(~(crossing <= MAX_ABS_VALUE))[:20]:
+        problems.append(
+            Problem(
+                int(row) + 1,
+                "velocity",
+                f"{float(velocity[row]):g} is too slow for the batch's {span:g} of road: "
+                f"crossing it would take {float(crossing[row]):g}, beyond the limit "
+                f"{MAX_ABS_VALUE:g}",
+            )
+        )
+
+
 def _as_floats(values: object) -> FloatArray | None:
     """The values as a flat float64 array, or None when any is not a number.
 
-    Booleans and None are not numbers, even though numpy would happily convert them.
+    Numbers, and text in plain decimal notation (`roadlink.association.numbers`). Booleans, None,
+    bytes and text such as `30_0` or `٣٠` are not numbers, though Python and numpy would happily
+    convert them.
     """
-    if not isinstance(values, np.ndarray):
-        items: list[object] = list(values)  # type: ignore[call-overload]
-        if any(v is None or isinstance(v, bool | np.bool_) for v in items):
+    if isinstance(values, np.ndarray):
+        items = values.tolist() if values.dtype.kind in "OU" else None
+    else:
+        items = list(values)  # type: ignore[call-overload]
+    if items is not None:
+        kinds = set(map(type, items))  # at C speed: the common case is one kind
+        if not kinds <= _NUMBER_TYPES:
+            return None
+        if str in kinds and not strictly_parsable(items if kinds == {str} else _texts(items)):
             return None
         values = items
     try:
@@ -220,6 +259,16 @@ def _as_floats(values: object) -> FloatArray | None:
         return array.astype(np.float64)
     except (TypeError, ValueError):
         return None
+
+
+def _texts(items: list[object]) -> list[str]:
+    return [v for v in items if isinstance(v, str)]
+
+
+# Exact types (bool is an int to Python, not a number to roadlink); numpy's scalars included.
+_NUMBER_TYPES = frozenset(
+    {int, float, str, np.str_, np.float64, np.float32, np.int64, np.int32, np.int16, np.int8}
+)
 
 
 def _text_column(n: int, given: Sequence[str | None] | None) -> ObjectArray:

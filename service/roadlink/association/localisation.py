@@ -23,6 +23,7 @@ import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
 from roadlink.association.detections import Detections, FloatArray
+from roadlink.association.numbers import parse_unsigned
 from roadlink.association.result import AssociationResult
 
 DEFAULT_SAMPLES = 100
@@ -330,8 +331,8 @@ def target_index(target: str, n_targets: int) -> int:
     KeyError naming the known targets when there is no such target.
     """
     name = target.strip()
-    number = name[1:] if name[:1] in ("T", "t") else name
-    if number.isdigit() and 1 <= int(number) <= n_targets:
-        return int(number) - 1
+    number = parse_unsigned(name[1:] if name[:1] in ("T", "t") else name, max_digits=12)
+    if number is not None and 1 <= number <= n_targets:
+        return number - 1
     known = f"T1..T{n_targets}" if n_targets else "none"
     raise KeyError(f"unknown target '{target}'; known: {known}")
