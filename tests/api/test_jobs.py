@@ -3,6 +3,8 @@ CSV, waiting), cancellation; the same numbers as the CLI."""
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import threading
 from collections.abc import Iterator
@@ -190,3 +192,29 @@ def test_cancel(
     assert worker.run_once()
     problem = assert_problem(client.post(f"/v1/jobs/{done['id']}/cancel"), 409)
     assert "succeeded" in problem["detail"]
+
+
+def test_result_csv_cannot_run_as_a_spreadsheet_formula(
+    client: TestClient, worker: Worker, deployment: dict[str, Any]
+) -> None:
+    """Ids are the gateway's text: written into a CSV, text such as =HYPERLINK(...) would run
+    when an analyst opens the file (OWASP CSV injection), so such cells start with a quote."""
+    ids = ['=HYPERLINK("http://evil.example","x")', "+1", "@d3", "-d4"]
+    text = "position,velocity,timestamp,sensor_id,detection_id\n" + "".join(
+        f'{p},30.0,{t},{s},"{i.replace(chr(34), 2 * chr(34))}"\n'
+        for p, t, s, i in zip(
+            (0.0, 100.0, 0.0, 100.0), (0.0, 3.3, 9.0, 12.3), ("=S1", "@S2") * 2, ids, strict=True
+        )
+    )
+    batch = _post_csv(client, deployment["id"], text)
+    job = client.post("/v1/jobs", json={"batch_id": batch["id"]}).json()["id"]
+    assert worker.run_once()
+    matrix = client.get(f"/v1/jobs/{job}/result", params={"format": "csv"})
+    rows = list(csv.reader(io.StringIO(matrix.text)))
+    cells = [cell for row in rows for cell in row]
+    assert "'=S1_detection_id" in cells and "'@S2_velocity" in cells
+    assert {"'" + i for i in ids} <= set(cells)
+    assert not [c for c in cells if c[:1] in ("=", "+", "@") or (c[:1] == "-" and c[1:2].isalpha())]
+    # The JSON result keeps the ids as they were sent.
+    served = client.get(f"/v1/jobs/{job}/result").json()
+    assert {d["detection_id"] for t in served["targets"] for d in t["detections"]} == set(ids)

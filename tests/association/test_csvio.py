@@ -2,6 +2,7 @@ import pytest
 
 from roadlink.association import DetectionError, associate
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.association.detections import Detections
 from roadlink.simulation import preset, simulate
 
 
@@ -56,3 +57,26 @@ def test_matrix_csv_is_one_row_per_target_one_column_group_per_sensor():
     assert len(lines) == 1 + 10
     ids = [cell for line in lines[1:] for cell in line.split(",")[1::3] for cell in cell.split(";")]
     assert sorted(i for i in ids if i) == sorted(d.detection_id.tolist())
+
+
+def test_text_cells_that_a_spreadsheet_would_run_are_escaped_and_read_back_as_they_were():
+    ids = ["=1+2", "+S2", "-x", "@d", "'=already quoted", "'plain", "plain", "-"]
+    d = Detections.from_columns(
+        [0.0] * len(ids),
+        [-1.5 + 31.5] * len(ids),
+        [float(k) for k in range(len(ids))],
+        sensor_id=["=S1"] * len(ids),
+        detection_id=ids,
+        target=["@T"] * len(ids),
+    )
+    text = write_detections_csv(d)
+    assert "'=1+2" in text and "'=S1" in text and "'@T" in text and ",plain," in text
+    back = read_detections_csv(text)
+    assert back.detection_id.tolist() == ids
+    assert set(back.sensor_id.tolist()) == {"=S1"} and set(back.target.tolist()) == {"@T"}
+
+
+def test_an_unknown_column_is_refused_by_name_as_json_refuses_an_unknown_field():
+    text = "position,velocity,timestamp,velocty\n0,30,1,31\n"
+    with pytest.raises(DetectionError, match="field 'velocty': unknown column; the known columns"):
+        read_detections_csv(text)

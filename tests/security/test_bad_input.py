@@ -145,6 +145,21 @@ def corpus(rows: list[dict[str, Any]], csv: str) -> Iterator[Bad]:
         where=(4, "velocity"),
         says=["too slow"],
     )
+    # One rule for both bodies: an unknown field or column is refused, never dropped in silence.
+    header, _, data = csv.partition("\n")
+    yield Bad(
+        "CSV unknown column",
+        (header.replace("sensor_id", "sensorid") + "\n" + data).encode(),
+        content_type="text/csv",
+        where=(None, "sensorid"),
+        says=["unknown column"],
+    )
+    yield Bad(
+        "CSV unnamed column",
+        "".join(line + ",\n" for line in csv.splitlines()).encode(),
+        content_type="text/csv",
+        says=["unnamed"],
+    )
     yield Bad("CSV ragged row", (csv + "1.0,2.0\n").encode(), content_type="text/csv")
     yield Bad("CSV header only", b"position,velocity,timestamp\n", content_type="text/csv")
     yield Bad("oversized body", b"[" + b" " * 2_000_001 + b"]", status=413, says=["2000000"])

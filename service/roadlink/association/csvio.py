@@ -1,5 +1,12 @@
-"""The detection CSV of design.md: a header row; `position`, `velocity`, `timestamp` required;
-`sensor_id`, `detection_id`, `target` optional (an empty `target` cell means unlabelled)."""
+"""The detection CSV: a header row; `position`, `velocity`, `timestamp` required; `sensor_id`,
+`detection_id`, `target` optional (an empty `target` cell means unlabelled).
+
+Every CSV roadlink writes may be opened in a spreadsheet, which runs a cell that starts with `=`,
+`+`, `-`, `@`, a tab or a carriage return as a formula (CSV injection). Text cells (ids and
+labels, never numbers) that start so are written with a leading `'`, as OWASP recommends (and a
+text that starts with `'` gets one more); the reader drops that quote again, so that a file
+roadlink wrote reads back as it was.
+"""
 
 from __future__ import annotations
 
@@ -10,8 +17,14 @@ import numpy as np
 
 from roadlink.association.detections import DetectionError, Detections, Problem
 
+# What a spreadsheet takes for the start of a formula.
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
 REQUIRED_COLUMNS = ("position", "velocity", "timestamp")
 OPTIONAL_COLUMNS = ("sensor_id", "detection_id", "target")
+# As a JSON batch refuses an unknown field, a CSV refuses an unknown column: a misspelt
+# `sensorid` must not be dropped in silence.
+KNOWN = (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS)
 
 
 def read_detections_csv(text: str) -> Detections:
@@ -46,6 +59,12 @@ def read_csv_columns(text: str) -> dict[str, list[str | None] | None]:
         raise DetectionError(
             [Problem(None, c, "required column is missing from the header") for c in missing]
         )
+    unknown = [n or f"(column {k + 1}, unnamed)" for k, n in enumerate(names) if n not in KNOWN]
+    if unknown:
+        known = ", ".join(KNOWN)
+        raise DetectionError(
+            [Problem(None, n, f"unknown column; the known columns are: {known}") for n in unknown]
+        )
     duplicated = sorted({n for n in names if names.count(n) > 1 and n})
     if duplicated:
         raise DetectionError(
@@ -70,13 +89,27 @@ def read_csv_columns(text: str) -> dict[str, list[str | None] | None]:
     if not rows:
         raise DetectionError([Problem(None, None, "the CSV has a header but no detections")])
     columns = np.array(rows, dtype=object).T
-    present = {name: _cells(columns[i].tolist()) for i, name in enumerate(names) if name}
+    present = {name: _cells(columns[i].tolist()) for i, name in enumerate(names)}
     return {name: present.get(name) for name in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS)}
 
 
 def _cells(cells: list[str]) -> list[str | None]:
-    """Stripped cells; empty ones become None (a missing number, an unlabelled target)."""
-    return [cell.strip() or None for cell in cells]
+    """Stripped cells, unescaped (see `spreadsheet_safe`); empty ones become None (a missing
+    number, an unlabelled target)."""
+    return [_unescaped(cell.strip()) or None for cell in cells]
+
+
+def spreadsheet_safe(text: str) -> str:
+    """A text cell that a spreadsheet shows as text, never runs as a formula. A text that starts
+    with a quote gets one more, so that reading it back gives it as it was."""
+    return "'" + text if text.startswith(_ESCAPED) else text
+
+
+def _unescaped(cell: str) -> str:
+    return cell[1:] if cell.startswith("'") and cell[1:].startswith(_ESCAPED) else cell
+
+
+_ESCAPED = (*FORMULA_STARTS, "'")
 
 
 def write_detections_csv(detections: Detections) -> str:
@@ -91,9 +124,9 @@ def write_detections_csv(detections: Detections) -> str:
                 repr(float(d.position[i])),
                 repr(float(d.velocity[i])),
                 repr(float(d.timestamp[i])),
-                d.sensor_id[i],
-                d.detection_id[i],
-                "" if d.target[i] is None else d.target[i],
+                spreadsheet_safe(d.sensor_id[i]),
+                spreadsheet_safe(d.detection_id[i]),
+                "" if d.target[i] is None else spreadsheet_safe(d.target[i]),
             ]
         )
     return out.getvalue()

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from roadlink.association.backprojection import backproject_times
+from roadlink.association.csvio import spreadsheet_safe
 from roadlink.association.detections import Detections, IntArray
 from roadlink.association.metrics import Metrics, score_grouping
 
@@ -67,7 +68,7 @@ class AssociationResult:
         column = {sid: k for k, sid in enumerate(sensors)}
         # Python values once, not a numpy scalar conversion per cell.
         sensor_of = [column[sid] for sid in d.sensor_id.tolist()]
-        ids = [str(i) for i in d.detection_id.tolist()]
+        ids = [spreadsheet_safe(str(i)) for i in d.detection_id.tolist()]
         velocities = [repr(v) for v in d.velocity.tolist()]
         timestamps = [repr(t) for t in d.timestamp.tolist()]
         out = io.StringIO()
@@ -75,7 +76,7 @@ class AssociationResult:
         writer.writerow(
             ["target"]
             + [
-                f"{sid}_{field}"
+                spreadsheet_safe(f"{sid}_{field}")
                 for sid in sensors
                 for field in ("detection_id", "velocity", "timestamp")
             ]
