@@ -313,3 +313,31 @@ def test_too_many_detections_in_one_batch_is_422_naming_the_setting(
         problem = assert_problem(response, 422)
         assert "ROADLINK_MAX_BATCH_DETECTIONS" in problem["detail"] and "50" in problem["detail"]
         assert row_counts(engine) == before
+
+
+def test_a_batch_past_the_limit_is_refused_before_its_rows_are_read(
+    settings: Any, engine: Engine, admin_key: str, paper_batch: Detections
+) -> None:
+    """Counting stops at the limit: rows past it are never parsed (here they are garbage that
+    would be reported if they were), so a huge upload costs what the limit costs."""
+    from roadlink.api import create_app
+    from roadlink.association.csvio import write_detections_csv
+
+    small = settings.model_copy(update={"max_batch_detections": 50, "max_body_bytes": 50_000_000})
+    garbage = "not,a,detection,row,at,all,!\n" * 200_000
+    rows = detection_rows(paper_batch)
+    rows[1]["velocity"] = -1.0  # an invalid row before the limit: the count still comes first
+    with TestClient(
+        create_app(small, engine=engine), headers={"Authorization": f"Bearer {admin_key}"}
+    ) as http:
+        deployment = http.post("/v1/deployments", json={"name": "small"}).json()["id"]
+        url = f"/v1/deployments/{deployment}/batches"
+        before = row_counts(engine)
+        csv_body = write_detections_csv(paper_batch.take(range(51))) + garbage
+        problem = assert_problem(
+            http.post(url, content=csv_body, headers={"content-type": "text/csv"}), 422
+        )
+        assert problem["detail"].startswith("the batch has more than 50 detections")
+        problem = assert_problem(http.post(url, json={"detections": rows}), 422)
+        assert problem["detail"].startswith("the batch has 100 detections, past the 50")
+        assert row_counts(engine) == before

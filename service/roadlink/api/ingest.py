@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from roadlink.api.errors import ApiProblem, ProblemItem, problems_from_detections
 from roadlink.api.schemas import AssociateRequest
-from roadlink.association.csvio import read_csv_columns
+from roadlink.association.csvio import TooManyRows, read_csv_columns
 from roadlink.association.detections import DetectionError, Detections, Problem
 
 DETECTION_FIELDS = ("position", "velocity", "timestamp", "sensor_id", "detection_id", "target")
@@ -33,9 +33,10 @@ class _Envelope(BaseModel):
 
 
 def parse_json_batch(
-    body: bytes, sensors: list[dict[str, Any]] | None
+    body: bytes, sensors: list[dict[str, Any]] | None, max_detections: int
 ) -> tuple[Detections, AssociateRequest | None]:
-    """A JSON batch body into detections and the association it asks for."""
+    """A JSON batch body into detections and the association it asks for (at most
+    `max_detections`, counted before any detection is validated)."""
     try:
         document = orjson.loads(body)
     except orjson.JSONDecodeError as exc:
@@ -53,6 +54,8 @@ def parse_json_batch(
         ]
         raise ApiProblem(422, "the batch is not of the documented shape", errors=shape) from None
     rows = envelope.detections
+    if len(rows) > max_detections:
+        raise too_many_detections(len(rows), max_detections)
     if not rows:
         raise ApiProblem(
             422,
@@ -66,6 +69,16 @@ def parse_json_batch(
             raise ApiProblem(422, _count(items), errors=items)
     with_sensors = _fill_declared_sensors(columns, sensors, json_body=True)
     return validate_columns(with_sensors, "/detections"), envelope.associate
+
+
+def too_many_detections(count: int | str, limit: int) -> ApiProblem:
+    """The problem of a batch past the detections one batch may hold."""
+    return ApiProblem(
+        422,
+        f"the batch has {count} detections, past the {limit} that one batch may hold "
+        "(ROADLINK_MAX_BATCH_DETECTIONS); split it into smaller batches",
+        errors=[ProblemItem(field="detections", message="too many detections")],
+    )
 
 
 def _well_formed(rows: list[dict[str, Any]], columns: dict[str, list[Any]]) -> bool:
@@ -102,14 +115,18 @@ def _shape_problems(rows: list[dict[str, Any]]) -> list[ProblemItem]:
     return items
 
 
-def parse_csv_batch(body: bytes, sensors: list[dict[str, Any]] | None) -> Detections:
-    """A detection CSV body (design.md's format) into detections."""
+def parse_csv_batch(
+    body: bytes, sensors: list[dict[str, Any]] | None, max_detections: int
+) -> Detections:
+    """A detection CSV body into detections; reading stops past `max_detections` rows."""
     try:
         text = body.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ApiProblem(400, f"the CSV is not UTF-8 text: {exc}") from None
     try:
-        columns = read_csv_columns(text)
+        columns = read_csv_columns(text, max_rows=max_detections)
+    except TooManyRows:
+        raise too_many_detections(f"more than {max_detections}", max_detections) from None
     except DetectionError as exc:
         raise ApiProblem(
             422, _count(exc.problems), errors=problems_from_detections(exc.problems)

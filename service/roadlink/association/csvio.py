@@ -27,6 +27,14 @@ OPTIONAL_COLUMNS = ("sensor_id", "detection_id", "target")
 KNOWN = (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS)
 
 
+class TooManyRows(DetectionError):
+    """The CSV has more data rows than the reader was allowed to read."""
+
+    def __init__(self, max_rows: int) -> None:
+        super().__init__([Problem(max_rows + 1, None, f"is beyond the {max_rows} rows allowed")])
+        self.max_rows = max_rows
+
+
 def read_detections_csv(text: str) -> Detections:
     """Parse and validate detection CSV text; DetectionError names the row and field at fault.
 
@@ -43,11 +51,13 @@ def read_detections_csv(text: str) -> Detections:
     )
 
 
-def read_csv_columns(text: str) -> dict[str, list[str | None] | None]:
+def read_csv_columns(text: str, max_rows: int | None = None) -> dict[str, list[str | None] | None]:
     """The raw columns of a detection CSV, by name (None for an absent optional column).
 
     Checks the file's structure (header, field counts, quoting) but not the values: that is
-    `Detections.from_columns`'s job. Empty cells become None.
+    `Detections.from_columns`'s job. Empty cells become None. With `max_rows`, reading stops at
+    the first row beyond it, which is then the error: the cost is bounded by the limit, not by
+    the file.
     """
     reader = csv.reader(io.StringIO(text.lstrip("\ufeff")), strict=True)
     header = next(reader, None)
@@ -77,6 +87,8 @@ def read_csv_columns(text: str) -> dict[str, list[str | None] | None]:
         for row in reader:
             if not any(cell.strip() for cell in row):
                 continue  # blank lines carry nothing
+            if max_rows is not None and len(rows) == max_rows:
+                raise TooManyRows(max_rows)
             if len(row) != width:
                 problems.append(
                     Problem(len(rows) + 1, None, f"has {len(row)} fields, the header has {width}")

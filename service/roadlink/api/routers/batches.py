@@ -101,21 +101,14 @@ async def create_batch(
             )
             if earlier is not None:
                 return replay(session, earlier, digest), True
+        limit = settings.max_batch_detections
         if content_type == "text/csv":
-            detections = parse_csv_batch(body, deployment.sensors)
+            detections = parse_csv_batch(body, deployment.sensors, limit)
             associate = AssociateRequest(associator=associator) if associator else None
             source = "csv"
         else:
-            detections, associate = parse_json_batch(body, deployment.sensors)
+            detections, associate = parse_json_batch(body, deployment.sensors, limit)
             source = "json"
-        if len(detections) > settings.max_batch_detections:
-            raise ApiProblem(
-                422,
-                f"the batch has {len(detections)} detections, more than the "
-                f"{settings.max_batch_detections} one batch may hold "
-                "(ROADLINK_MAX_BATCH_DETECTIONS); split it into smaller batches",
-                errors=[ProblemItem(field="detections", message="too many detections")],
-            )
         batch = store_batch(
             session,
             settings=settings,
