@@ -4,8 +4,6 @@ each test run creates and drops its own uniquely named database there."""
 
 from __future__ import annotations
 
-import socket
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -20,8 +18,13 @@ from roadlink.db.migrate import upgrade_to_head
 from roadlink.db.models import ApiKeyScope
 from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
+from tests.databases import (
+    BACKENDS,
+    create_postgres_database,
+    drop_postgres_database,
+    require_postgres,
+)
 
-POSTGRES_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 TABLES_CHILD_FIRST = (
     "job_idempotency_key",
     "api_key",
@@ -31,40 +34,6 @@ TABLES_CHILD_FIRST = (
     "job",
     "deployment",
 )
-
-
-def postgres_answers() -> bool:
-    """True when something listens on the PostgreSQL port."""
-    try:
-        with socket.create_connection(("127.0.0.1", 5432), timeout=0.5):
-            return True
-    except OSError:
-        return False
-
-
-def create_postgres_database() -> str:
-    """A new, uniquely named database on the local server; its URL."""
-    name = f"roadlink_test_{uuid.uuid4().hex[:12]}"
-    admin = make_engine(POSTGRES_ADMIN_URL, isolation_level="AUTOCOMMIT")
-    with admin.connect() as connection:
-        connection.execute(text(f'CREATE DATABASE "{name}"'))
-    admin.dispose()
-    return POSTGRES_ADMIN_URL.rsplit("/", 1)[0] + "/" + name
-
-
-def drop_postgres_database(url: str) -> None:
-    """Drop a database made by create_postgres_database (even with connections left open)."""
-    name = url.rsplit("/", 1)[1]
-    admin = make_engine(POSTGRES_ADMIN_URL, isolation_level="AUTOCOMMIT")
-    with admin.connect() as connection:
-        connection.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
-    admin.dispose()
-
-
-def require_postgres() -> None:
-    """Skip, saying why, when no PostgreSQL server answers."""
-    if not postgres_answers():
-        pytest.skip("PostgreSQL tests skipped: nothing answers on 127.0.0.1:5432")
 
 
 @pytest.fixture
@@ -77,9 +46,6 @@ def empty_database_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterat
         drop_postgres_database(url)
     else:
         yield f"sqlite:///{tmp_path / 'empty.db'}"
-
-
-BACKENDS = ["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)]
 
 
 @pytest.fixture(scope="session", params=BACKENDS)

@@ -18,7 +18,7 @@ from roadlink.db.migrate import (
     migrations_directory,
 )
 from roadlink.db.models import Base
-from tests.conftest import BACKENDS
+from tests.databases import BACKENDS
 
 REPO = Path(__file__).resolve().parents[2]
 

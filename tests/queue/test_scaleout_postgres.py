@@ -33,7 +33,7 @@ from roadlink.queue.jobs import NOTIFY_CHANNEL
 from roadlink.queue.worker import run_worker_process
 from roadlink.settings import Settings
 from roadlink.simulation import preset, simulate
-from tests.conftest import create_postgres_database, drop_postgres_database, postgres_answers
+from tests.databases import create_postgres_database, drop_postgres_database, postgres_answers
 from tests.queue import associators_for_tests
 
 pytestmark = [pytest.mark.slow, pytest.mark.postgres]

@@ -14,9 +14,9 @@ import contextlib
 import hashlib
 import logging
 import uuid
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from datetime import timedelta
-from typing import Annotated
+from typing import Annotated, TypeVar
 
 from fastapi import FastAPI, Header, Response
 from pydantic import BaseModel
@@ -38,6 +38,9 @@ from roadlink.db.models import utcnow
 from roadlink.settings import Settings
 
 log = logging.getLogger("roadlink")
+
+Written = TypeVar("Written")
+Found = TypeVar("Found")
 
 # How often an API process forgets expired keys; keys live between the retention and this more.
 FORGET_EVERY_SECONDS = 3600.0
@@ -84,42 +87,41 @@ def replayed_job(
     return JobRead.model_validate(job)
 
 
-def commit_job(
-    session: Session,
-    *,
-    job_id: uuid.UUID,
-    principal: str,
-    idempotency_key: str | None,
-    digest: str,
-    response: Response,
-) -> JobRead | None:
-    """Record the key with the new job and commit both; when a concurrent retry with the same
-    key committed first, roll back and return that request's job instead."""
-    if idempotency_key is None:
-        session.commit()
-        return None
-    record_job_idempotency_key(
-        session,
-        principal=principal,
-        idempotency_key=idempotency_key,
-        request_sha256=digest,
-        job_id=job_id,
-    )
+def first_commit_wins(
+    session: Session, write: Callable[[], Written], earlier: Callable[[], Found | None]
+) -> Written | Found:
+    """Write and commit; when a concurrent request with the same Idempotency-Key committed
+    first, answer what that request created instead.
+
+    Batches and jobs alike: their keys are unique in the database, so of several requests with
+    one key sent at once, exactly one commits and the others meet the unique constraint (when
+    writing or when committing). Each of those rolls back and returns `earlier()`, the winner's
+    answer (or the 422 of a different body), as a retry after the fact would get it.
+    """
     try:
+        written = write()
         session.commit()
+        return written
     except IntegrityError:
         session.rollback()
-        replay = replayed_job(
+        found = earlier()
+        if found is None:  # some other constraint: the error handler answers it
+            raise
+        return found
+
+
+def record_job_key(
+    session: Session, *, job_id: uuid.UUID, principal: str, idempotency_key: str | None, digest: str
+) -> None:
+    """Remember which job this key created, in the job's transaction."""
+    if idempotency_key is not None:
+        record_job_idempotency_key(
             session,
             principal=principal,
             idempotency_key=idempotency_key,
-            digest=digest,
-            response=response,
+            request_sha256=digest,
+            job_id=job_id,
         )
-        if replay is None:
-            raise
-        return replay
-    return None
 
 
 def forget_expired_keys(sessions: sessionmaker[Session], settings: Settings) -> Forgotten:

@@ -7,12 +7,12 @@ import uuid
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Query, Request, Response
-from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem, ProblemItem, problem_responses
+from roadlink.api.idempotency import first_commit_wins
 from roadlink.api.ingest import parse_csv_batch, parse_json_batch
 from roadlink.api.routers.deployments import require_deployment
 from roadlink.api.schemas import AssociateRequest, BatchRead, JobRead
@@ -109,30 +109,29 @@ async def create_batch(
         else:
             detections, associate = parse_json_batch(body, deployment.sensors, limit)
             source = "json"
-        batch = store_batch(
-            session,
-            settings=settings,
-            deployment_id=deployment_id,
-            detections=detections,
-            source=source,
-            associate=associate,
-            idempotency_key=idempotency_key,
-            request_sha256=digest,
-        )
-        try:
-            session.commit()
-        except IntegrityError:
-            # A concurrent request with the same Idempotency-Key committed first.
-            session.rollback()
-            if idempotency_key is None:
-                raise
-            earlier = repository.find_batch_by_idempotency_key(
-                session, deployment_id=deployment_id, idempotency_key=idempotency_key
+
+        def write() -> tuple[BatchRead, bool]:
+            batch = store_batch(
+                session,
+                settings=settings,
+                deployment_id=deployment_id,
+                detections=detections,
+                source=source,
+                associate=associate,
+                idempotency_key=idempotency_key,
+                request_sha256=digest,
             )
-            if earlier is None:
-                raise
-            return replay(session, earlier, digest), True
-        return read_batch(session, batch), False
+            return read_batch(session, batch), False
+
+        def winners_answer() -> tuple[BatchRead, bool] | None:
+            found = None
+            if idempotency_key is not None:
+                found = repository.find_batch_by_idempotency_key(
+                    session, deployment_id=deployment_id, idempotency_key=idempotency_key
+                )
+            return None if found is None else (replay(session, found, digest), True)
+
+        return first_commit_wins(session, write, winners_answer)
 
     result, replayed = await run_in_threadpool(work, session)
     if replayed:

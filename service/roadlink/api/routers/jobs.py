@@ -18,7 +18,13 @@ from starlette.concurrency import run_in_threadpool
 from roadlink.api.auth import principal_of
 from roadlink.api.deps import SessionDep, SessionFactoryDep, SettingsDep
 from roadlink.api.errors import ApiProblem, ProblemItem, problem_responses
-from roadlink.api.idempotency import IdempotencyKeyHeader, commit_job, replayed_job, request_sha256
+from roadlink.api.idempotency import (
+    IdempotencyKeyHeader,
+    first_commit_wins,
+    record_job_key,
+    replayed_job,
+    request_sha256,
+)
 from roadlink.api.jobresults import SucceededJobDep, unfinished_detail
 from roadlink.api.pagelinks import DEFAULT_LIFETIME_SECONDS, MAX_LIFETIME_SECONDS, page_token
 from roadlink.api.routers.batches import checked_associate
@@ -141,23 +147,37 @@ def create_job(
             "least two: add the batches of the other sensors",
             errors=[ProblemItem(field="batch_ids", message="one sensor position only")],
         )
-    job = enqueue_job(
-        session,
-        deployment_id=deployment_id,
-        selection=selection,
-        associator=body.associator,
-        params=params,
-        max_attempts=settings.max_attempts,
-    )
-    replay = commit_job(
-        session,
-        job_id=job.id,
-        principal=principal,
-        idempotency_key=idempotency_key,
-        digest=digest,
-        response=response,
-    )
-    return replay or JobRead.model_validate(job)
+
+    def write() -> JobRead:
+        job = enqueue_job(
+            session,
+            deployment_id=deployment_id,
+            selection=selection,
+            associator=body.associator,
+            params=params,
+            max_attempts=settings.max_attempts,
+        )
+        record_job_key(
+            session,
+            job_id=job.id,
+            principal=principal,
+            idempotency_key=idempotency_key,
+            digest=digest,
+        )
+        return JobRead.model_validate(job)
+
+    def winners_answer() -> JobRead | None:
+        if idempotency_key is None:
+            return None
+        return replayed_job(
+            session,
+            principal=principal,
+            idempotency_key=idempotency_key,
+            digest=digest,
+            response=response,
+        )
+
+    return first_commit_wins(session, write, winners_answer)
 
 
 @router.get(
