@@ -15,6 +15,7 @@ from roadlink.api.auth import authorize, check_policy_covers
 from roadlink.api.bodylimit import BodyLimitMiddleware
 from roadlink.api.errors import (
     ProblemDetail,
+    ProblemsForEveryError,
     install_error_handlers,
     problem_responses,
 )
@@ -91,6 +92,7 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
 
     app.middleware("http")(app.state.metrics.middleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
+    app.add_middleware(ProblemsForEveryError)  # added last: the outermost layer
     protected = [m.router for m in (deployments, batches, jobs, associators, simulations)]
     check_policy_covers(protected)
     for router in protected:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import logging
+import uuid
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from http import HTTPStatus
 from typing import Any
 
@@ -10,9 +13,13 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
+from sqlalchemy.exc import DBAPIError, IntegrityError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from roadlink.association.detections import Problem
+
+log = logging.getLogger("roadlink")
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
 TITLES = {413: "Content Too Large", 422: "Unprocessable Content"}
@@ -63,6 +70,11 @@ class ProblemDetail(BaseModel):
     errors: list[ProblemItem] = Field(
         default_factory=list, description="Each thing wrong, with its row and field."
     )
+    error_id: str | None = Field(
+        default=None,
+        description="For a failure of the server (5xx, or a conflict in the database): the id "
+        "under which its log holds the details.",
+    )
 
 
 class ApiProblem(Exception):
@@ -89,6 +101,7 @@ def problem_response(
     detail: str,
     errors: Sequence[ProblemItem] = (),
     headers: Mapping[str, str] | None = None,
+    error_id: str | None = None,
 ) -> JSONResponse:
     """The problem+json response for `status`."""
     body = ProblemDetail(
@@ -97,6 +110,7 @@ def problem_response(
         detail=detail,
         instance=request.url.path,
         errors=list(errors),
+        error_id=error_id,
     )
     return JSONResponse(
         body.model_dump(mode="json"),
@@ -169,3 +183,113 @@ def problem_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
 def status_title(status: int) -> str:
     """The reason phrase of RFC 9110 (which renamed 413 and 422)."""
     return TITLES.get(status) or HTTPStatus(status).phrase
+
+
+# How long a client should wait before retrying when the database is busy or unavailable.
+RETRY_AFTER_SECONDS = 5
+
+# What SQLite and PostgreSQL say when the database cannot take writes for now: a full disk, a
+# read-only file or server, a lock held too long, a lost connection. All pass, or may pass.
+_UNAVAILABLE_MESSAGES = (
+    "database or disk is full",
+    "readonly database",
+    "read-only",
+    "database is locked",
+    "disk i/o error",
+    "unable to open database file",
+    "no space left",
+    "server closed the connection",
+    "connection refused",
+    "terminating connection",
+)
+
+
+@dataclass(frozen=True)
+class UnexpectedProblem:
+    """The answer to an exception no handler expected: status, words, headers, and the id that
+    the log line with its traceback carries."""
+
+    status: int
+    detail: str
+    headers: dict[str, str]
+    error_id: str
+
+
+def problem_for(exc: BaseException) -> UnexpectedProblem:
+    """The one translation of an unexpected exception, database errors included, into a problem.
+
+    - the database unavailable for now (see `_UNAVAILABLE_MESSAGES`, or a connection error):
+      503 with Retry-After, since a retry will likely succeed;
+    - a constraint the request broke in the database (a concurrent change): 409;
+    - anything else: 500. Never the exception's text: it may hold paths, SQL or data.
+    """
+    error_id = uuid.uuid4().hex[:12]
+    if isinstance(exc, IntegrityError):
+        return UnexpectedProblem(
+            409,
+            "the request conflicts with a concurrent change in the database; "
+            f"retry it (error id {error_id})",
+            {},
+            error_id,
+        )
+    if isinstance(exc, DBAPIError) and (exc.connection_invalidated or _unavailable(exc)):
+        return UnexpectedProblem(
+            503,
+            "the database cannot take this request now (full, read-only, busy or unreachable); "
+            f"retry in a few seconds (error id {error_id})",
+            {"Retry-After": str(RETRY_AFTER_SECONDS)},
+            error_id,
+        )
+    return UnexpectedProblem(
+        500, f"the server failed; it logged the details under error id {error_id}", {}, error_id
+    )
+
+
+def _unavailable(exc: DBAPIError) -> bool:
+    text = str(exc.orig).lower()
+    return isinstance(exc, OperationalError) and any(m in text for m in _UNAVAILABLE_MESSAGES)
+
+
+class ProblemsForEveryError:
+    """The outermost layer: whatever fails anywhere inside (routes, dependencies, the other
+    middleware), the client gets problem+json with an error id, and the log gets the traceback
+    under the same id. Once a response has started, only the log can be told."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def tracking_send(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracking_send)
+        except Exception as exc:
+            problem = problem_for(exc)
+            log.error(
+                "error %s: %s %s failed with %s (answered %d)",
+                problem.error_id,
+                scope.get("method"),
+                scope.get("path"),
+                type(exc).__name__,
+                problem.status,
+                exc_info=exc,
+            )
+            if started:
+                raise
+            response = problem_response(
+                Request(scope),
+                problem.status,
+                problem.detail,
+                headers=problem.headers,
+                error_id=problem.error_id,
+            )
+            await response(scope, receive, send)

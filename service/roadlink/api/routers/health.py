@@ -6,8 +6,9 @@ from fastapi import APIRouter, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from sqlalchemy import Engine
 
-from roadlink.api.errors import ApiProblem, problem_responses
+from roadlink.api.errors import RETRY_AFTER_SECONDS, ApiProblem, problem_responses
 from roadlink.api.schemas import HealthRead, ReadinessRead
+from roadlink.db.engine import check_writable
 from roadlink.db.migrate import current_revision, head_revision
 
 router = APIRouter(tags=["health"])
@@ -27,7 +28,8 @@ def healthz() -> HealthRead:
     summary="Readiness",
 )
 def readyz(request: Request) -> ReadinessRead:
-    """The database answers and its schema is at the newest migration (503 otherwise)."""
+    """The database answers, its schema is at the newest migration, and it takes writes (a
+    write rolled back at once); 503 otherwise."""
     engine: Engine = request.app.state.engine
     try:
         revision = current_revision(engine)
@@ -41,6 +43,14 @@ def readyz(request: Request) -> ReadinessRead:
             503,
             f"the database schema is at revision {revision}, not {head}: run `roadlink migrate`",
         )
+    try:
+        check_writable(engine)
+    except Exception as exc:
+        raise ApiProblem(
+            503,
+            f"the database answers but does not take writes: {type(exc).__name__}: {exc}",
+            headers={"Retry-After": str(RETRY_AFTER_SECONDS)},
+        ) from None
     return ReadinessRead(database=engine.dialect.name, revision=revision or "")
 
 
