@@ -5,6 +5,8 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import multiprocessing.process
+import os
+import signal
 import threading
 import time
 from pathlib import Path
@@ -31,7 +33,9 @@ def _settings(**overrides: object) -> Settings:
 
 
 class WorkerPool:
-    """N worker processes, restarted if one dies, stopped together."""
+    """N worker processes, restarted if one dies, stopped together: the one owner of the
+    process tree under `serve` and `worker` (each worker also stops by itself if this process
+    dies without stopping it, see `roadlink.queue.worker.run_worker_process`)."""
 
     def __init__(self, settings: Settings, size: int) -> None:
         self.settings = settings
@@ -44,7 +48,7 @@ class WorkerPool:
         from roadlink.queue.worker import run_worker_process
 
         for _ in range(self.size):
-            process = _spawn.Process(target=run_worker_process, args=(self.settings,))
+            process = _spawn.Process(target=run_worker_process, args=(self.settings, os.getpid()))
             process.start()
             self.processes.append(process)
         self._watcher.start()
@@ -58,7 +62,9 @@ class WorkerPool:
                     log.warning(
                         "worker %s exited (%s); starting another", process.pid, process.exitcode
                     )
-                    replacement = _spawn.Process(target=run_worker_process, args=(self.settings,))
+                    replacement = _spawn.Process(
+                        target=run_worker_process, args=(self.settings, True)
+                    )
                     replacement.start()
                     self.processes[k] = replacement
 
@@ -78,6 +84,21 @@ class WorkerPool:
     def join(self) -> None:
         for process in self.processes:
             process.join()
+
+
+def _exit_on_sigterm() -> None:
+    """Make SIGTERM end this process through `finally` blocks, as Ctrl-C does.
+
+    Python's default SIGTERM kills the process on the spot, so a `finally: pool.stop()` never
+    runs and the worker processes live on, re-parented to PID 1. uvicorn makes this matter for
+    `serve`: it handles SIGTERM itself, shuts down gracefully, then restores the previous handler
+    and raises the signal again, which, left at the default, is that on-the-spot kill.
+    """
+
+    def leave(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, leave)
 
 
 def _migrate(settings: Settings) -> None:
@@ -117,6 +138,7 @@ def serve_command(
     )
     _migrate(settings)
     _say_how_to_get_a_key(settings)
+    _exit_on_sigterm()
     pool = WorkerPool(settings, settings.workers)
     pool.start()
     log.info("started %d worker process(es) on %s", settings.workers, _safe_url(settings))
@@ -155,11 +177,12 @@ def worker_command(
     logging.basicConfig(
         level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(message)s"
     )
+    _exit_on_sigterm()
     pool = WorkerPool(settings, workers)
     pool.start()
     try:
         pool.join()
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemExit):
         pass
     finally:
         pool.stop()

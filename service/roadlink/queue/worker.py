@@ -211,7 +211,27 @@ class Worker:
         log.info("job %s: %s -> %s", job.id, error.splitlines()[0], state)
 
 
-def run_worker_process(settings: Settings) -> None:
+# How often a worker process checks that the process that started it is still there.
+PARENT_CHECK_SECONDS = 1.0
+
+
+def _stop_when_orphaned(stopping: threading.Event, parent_pid: int) -> None:
+    """Stop, as on SIGTERM, once the parent is gone (killed with SIGKILL, say): a worker must not
+    run jobs beside a restarted server, re-parented to PID 1. The parent passes its pid, since it
+    may already be gone when this process gets to ask for it."""
+
+    def watch() -> None:
+        while True:
+            if os.getppid() != parent_pid:
+                log.warning("the process that started this worker is gone; stopping")
+                stopping.set()
+            if stopping.wait(PARENT_CHECK_SECONDS):
+                return
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def run_worker_process(settings: Settings, parent_pid: int | None = None) -> None:
     """Entry point of a worker process: work until SIGTERM or SIGINT, then stop cleanly.
 
     A job in progress is interrupted at its next progress report and handed back to the queue.
@@ -227,6 +247,8 @@ def run_worker_process(settings: Settings) -> None:
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
+    if parent_pid is not None:  # started by a pool (not `roadlink worker` as one process)
+        _stop_when_orphaned(worker.stopping, parent_pid)
     try:
         worker.run()
     finally:
