@@ -52,18 +52,20 @@ class Settings(BaseSettings):
     max_attempts: int = Field(
         default=3,
         ge=1,
-        description="Runs a job gets (a crash or lost lease uses one) before it fails.",
+        description="Runs a job gets (a dead worker or associator process, or a lost lease, "
+        "uses one) before it fails.",
     )
     retry_backoff_seconds: float = Field(
         default=1.0,
         ge=0,
-        description="Delay before a crashed job is retried (doubles per attempt).",
+        description="Delay before such a job is run again (doubles per attempt).",
     )
     job_timeout_seconds: float = Field(
         default=600.0,
         gt=0,
-        description="Longest a job may run: past it the job fails and its associator process is "
-        "killed, freeing the worker for the next job.",
+        description="Longest a job's association may run (counted from when its associator "
+        "process has the job): past it the job fails and that process is killed, freeing the "
+        "worker for the next job.",
     )
     max_body_bytes: int = Field(
         default=64 * 1024 * 1024, gt=0, description="Largest request body accepted (413 beyond)."

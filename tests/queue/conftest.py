@@ -14,6 +14,7 @@ from roadlink.db import repository
 from roadlink.db.engine import make_session_factory, transaction
 from roadlink.queue import enqueue_job
 from roadlink.simulation import preset, simulate
+from tests.queue import associators_for_tests
 
 EnqueueJob = Callable[..., uuid.UUID]
 
@@ -58,3 +59,13 @@ def enqueue(sessions: sessionmaker[Session], paper_batch: Detections) -> Enqueue
         return job.id
 
     return enqueue_over_batch
+
+
+@pytest.fixture
+def test_associators(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The test-only associators (tests/queue/associators_for_tests.py) in the registry for
+    the test, and out of it after; the worker's associator process, forked later, knows them."""
+    from roadlink.association.associators import ASSOCIATORS
+
+    for cls in (associators_for_tests.SleepingAssociator, associators_for_tests.CrashingAssociator):
+        monkeypatch.setitem(ASSOCIATORS, cls.name, cls)

@@ -21,8 +21,9 @@ from roadlink.db import repository
 from roadlink.db.models import Job
 from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
-from tests.queue import associators_for_tests
 from tests.queue.conftest import EnqueueJob
+
+pytestmark = pytest.mark.usefixtures("test_associators")
 
 
 def _job(sessions: sessionmaker[Session], job_id: uuid.UUID) -> Job:
@@ -32,20 +33,11 @@ def _job(sessions: sessionmaker[Session], job_id: uuid.UUID) -> Job:
         return job
 
 
-def _wait_for(condition: Any, timeout: float = 10.0) -> None:
+def _wait_for(condition: Any, timeout: float = 60.0) -> None:
     deadline = time.monotonic() + timeout
     while not condition():
         assert time.monotonic() < deadline, "timed out"
         time.sleep(0.01)
-
-
-@pytest.fixture(autouse=True)
-def test_associators(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The test-only associators, known to the worker's associator process (forked later)."""
-    from roadlink.association.associators import ASSOCIATORS
-
-    for cls in (associators_for_tests.SleepingAssociator, associators_for_tests.CrashingAssociator):
-        monkeypatch.setitem(ASSOCIATORS, cls.name, cls)
 
 
 # Reports progress every 10 ms for 10 s, so that tests can act on the job while it runs.
@@ -73,16 +65,25 @@ def test_a_job_stores_exactly_what_the_core_computes(
     assert stored.matrix_csv == expected.to_matrix_csv()
 
 
-def test_a_crash_is_retried_until_attempts_run_out(
-    worker: Worker, sessions: sessionmaker[Session], enqueue: EnqueueJob
+def test_a_crash_fails_at_once_with_a_short_error_and_the_traceback_in_the_log(
+    worker: Worker,
+    sessions: sessionmaker[Session],
+    enqueue: EnqueueJob,
+    caplog: pytest.LogCaptureFixture,
 ) -> None:
-    job_id = enqueue("test-crashing", max_attempts=2)
-    assert worker.run_once()
-    assert _job(sessions, job_id).state == "queued"
+    """The core is deterministic: a job it fails on would fail again, so it is not retried. Its
+    error, which any key that may read the job sees, names the failure without internals; the
+    traceback goes to the log, under the error id the job's error gives."""
+    job_id = enqueue("test-crashing", max_attempts=3)
     assert worker.run_once()
     job = _job(sessions, job_id)
-    assert (job.state, job.attempts) == ("failed", 2)
-    assert job.error is not None and "RuntimeError: out of memory" in job.error
+    assert (job.state, job.attempts) == ("failed", 1)
+    assert job.error is not None
+    assert job.error.startswith("the associator failed: RuntimeError: out of memory (error id ")
+    assert "Traceback" not in job.error and ".py" not in job.error and "\n" not in job.error
+    error_id = job.error.rsplit("error id ", 1)[1].rstrip(")")
+    logged = [r.getMessage() for r in caplog.records if error_id in r.getMessage()]
+    assert logged and "Traceback" in logged[0] and "associators_for_tests.py" in logged[0]
 
 
 def test_a_user_error_fails_at_once_with_the_cores_message(
@@ -173,7 +174,10 @@ def test_a_job_past_its_time_limit_fails_and_the_worker_takes_the_next(
         job = _job(sessions, slow)
         assert (job.state, job.attempts) == ("failed", 1)  # not retried: it would overrun again
         assert job.error is not None and "exceeded the time limit of 0.5 s" in job.error
-        assert took < 5.0  # stopped at the limit, not after the job's 30 s
+        # Stopped at the limit, not after the job's 30 s. The limit counts the association only,
+        # so a slow cold start of the associator process cannot fail the job; what `took` adds
+        # to the 0.5 s is that start, seconds at most even on a loaded machine.
+        assert took < 20.0
         assert worker.run_once()
         assert _job(sessions, following).state == "succeeded"
         assert worker.associator_process.pid not in (None, os.getpid())

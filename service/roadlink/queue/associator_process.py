@@ -60,10 +60,13 @@ class Succeeded:
 
 @dataclass(frozen=True)
 class Failed:
-    """The core raised. `retry` is False for user errors, which would fail the same way again."""
+    """The core raised: `error` says what in a line fit for the job's users (the core's own
+    message for wrong input or parameters, the exception's type and first line otherwise);
+    `details` is the traceback, for the log only. The core is deterministic, so running the job
+    again would fail the same way: it is not retried."""
 
     error: str
-    retry: bool
+    details: str = ""
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,10 @@ class Died:
 
 
 Outcome = Succeeded | Failed | TimedOut | Stopped | Died
+
+
+# The longest exception text a job's error repeats.
+MAX_ERROR_CHARS = 200
 
 
 class _StopRequested(Exception):
@@ -111,12 +118,17 @@ class AssociatorProcess:
         associator: str,
         params: dict[str, Any],
         *,
-        deadline: float,
+        time_limit: float,
         should_stop: Callable[[], bool],
         on_progress: Callable[[float], None],
     ) -> Outcome:
-        """Run one job in the child until it ends, `deadline` (time.monotonic()) passes, or
-        `should_stop()` turns true; progress reports go to `on_progress`."""
+        """Run one job in the child until it ends, it has run `time_limit` seconds, or
+        `should_stop()` turns true; progress reports go to `on_progress`.
+
+        The time limit counts the association only: its clock starts once the child is up and
+        has the job, so a cold start of the child (seconds on a loaded machine) is not charged
+        to the job.
+        """
         connection, stop = self._ready()
         try:
             connection.send((detections, associator, params))
@@ -124,6 +136,7 @@ class AssociatorProcess:
             self._kill()
             connection, stop = self._ready()
             connection.send((detections, associator, params))
+        deadline = time.monotonic() + time_limit
         stop_asked_at: float | None = None
         while True:
             now = time.monotonic()
@@ -153,7 +166,7 @@ class AssociatorProcess:
             elif kind == "stopped":
                 return Stopped()
             else:  # "error"
-                return Failed(message[1], retry=message[2])
+                return Failed(message[1], details=message[2])
 
     def start(self) -> None:
         """Start the child now rather than at the first job (which then starts sooner)."""
@@ -237,7 +250,7 @@ def _serve(
         except (BrokenPipeError, OSError):
             return
         except Exception as exc:  # the result could not be pickled
-            connection.send(("error", f"the result could not be sent back: {exc}", True))
+            connection.send(("error", f"the result could not be sent back: {exc}", ""))
 
 
 def _run_one(
@@ -264,10 +277,13 @@ def _run_one(
     except _StopRequested:
         return ("stopped",)
     except (AssociationError, DetectionError) as exc:
-        # The input or parameters are wrong: running again would fail the same way.
-        return ("error", str(exc), False)
+        # The input or parameters are wrong, and the core's message says how.
+        return ("error", str(exc), "")
     except Exception as exc:
-        return ("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=5)}", True)
+        # A failure of the core on this data: its type and first line for the job's users, the
+        # traceback (with the server's file paths) for the log only.
+        first_line = (str(exc).strip().splitlines() or [""])[0][:MAX_ERROR_CHARS]
+        return ("error", f"{type(exc).__name__}: {first_line}", traceback.format_exc())
 
 
 def _exit_with_worker(lifeline: multiprocessing.connection.Connection) -> None:

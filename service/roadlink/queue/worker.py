@@ -122,13 +122,19 @@ class Worker:
                 detections,
                 job.associator,
                 job.params,
-                deadline=started + limit,
+                time_limit=limit,
                 should_stop=lambda: lost.is_set() or self.stopping.is_set(),
                 on_progress=record_progress,
             )
         except Exception as exc:  # loading the detections failed (the database went away)
-            log.exception("job %s could not be run", job.id)
-            self._failed(job, f"{type(exc).__name__}: {exc}", retry=True)
+            error_id = _error_id()
+            log.exception("job %s could not be run (error %s)", job.id, error_id)
+            self._failed(
+                job,
+                f"the job's detections could not be loaded ({type(exc).__name__}); it will be "
+                f"retried (error id {error_id})",
+                retry=True,
+            )
             return
         finally:
             done.set()
@@ -150,9 +156,12 @@ class Worker:
                 retry=True,
             )
         elif isinstance(outcome, Failed):
-            if outcome.retry:
-                log.error("job %s crashed: %s", job.id, outcome.error)
-            self._failed(job, outcome.error, retry=outcome.retry)
+            error = outcome.error
+            if outcome.details:  # not a message of the core's about the input: a failure
+                error_id = _error_id()
+                log.error("job %s failed (error %s):\n%s", job.id, error_id, outcome.details)
+                error = f"the associator failed: {error} (error id {error_id})"
+            self._failed(job, error, retry=False)
         else:
             self._succeeded(job, outcome, started)
 
@@ -209,6 +218,11 @@ class Worker:
                 backoff_seconds=self.settings.retry_backoff_seconds,
             )
         log.info("job %s: %s -> %s", job.id, error.splitlines()[0], state)
+
+
+def _error_id() -> str:
+    """The id under which the log holds what a job's short error leaves out."""
+    return uuid.uuid4().hex[:12]
 
 
 # How often a worker process checks that the process that started it is still there.
