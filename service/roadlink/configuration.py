@@ -24,8 +24,9 @@ class SettingReference:
     variable: str
     default: str
     meaning: str
-    # False when the default is worked out at start-up (the number of cores): then .env.example
-    # leaves the value empty instead of writing a word where a number belongs.
+    # False when the default is worked out at start-up (the number of cores) or is no value at
+    # all: then .env.example leaves the value empty instead of writing a word where a value
+    # belongs.
     literal_default: bool = True
 
 
@@ -36,7 +37,7 @@ def setting_references() -> list[SettingReference]:
             variable=ENV_PREFIX + name.upper(),
             default=_shown_default(field),
             meaning=field.description or "",
-            literal_default=field.default_factory is None,
+            literal_default=field.default_factory is None and field.default is not None,
         )
         for name, field in Settings.model_fields.items()
     ]
@@ -47,6 +48,8 @@ def _shown_default(field: FieldInfo) -> str:
     if isinstance(extra, dict) and "shown_default" in extra:
         return str(extra["shown_default"])
     value = field.get_default(call_default_factory=False)
+    if value is None:
+        return "unset"
     if isinstance(value, float):
         return f"{value:g}"
     return str(value)

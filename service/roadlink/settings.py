@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -93,11 +93,23 @@ class Settings(BaseSettings):
     max_batch_detections: int = Field(
         default=1_000_000, gt=0, description="Most detections one batch may hold (422 beyond)."
     )
+    public_url: str | None = Field(
+        default=None,
+        pattern=r"^https?://[^\s/?#]+(/[^\s?#]*)?$",
+        description="The service's address as its users reach it (e.g. https://roadlink.example; "
+        "behind a proxy, the proxy's), for the links it hands out. Unset, links are relative "
+        "to the server the client asked. Never taken from the request's Host header.",
+    )
     idempotency_hours: float = Field(
         default=24.0,
         ge=24.0,
         description="How long an Idempotency-Key is remembered (at least 24 hours).",
     )
+
+    @field_validator("public_url", mode="before")
+    @classmethod
+    def _empty_is_unset(cls, value: object) -> object:
+        return None if value == "" else value
 
     @model_validator(mode="after")
     def _heartbeat_within_lease(self) -> Settings:

@@ -214,3 +214,24 @@ def test_with_authentication_disabled_pages_need_no_token(
 def test_the_page_is_not_in_the_api_schema(client: TestClient) -> None:
     paths = client.get("/openapi.json").json()["paths"]
     assert not [p for p in paths if p.startswith("/jobs")]
+
+
+def test_a_page_link_never_points_at_the_host_the_client_named(
+    settings: Settings, engine: Engine, admin_key: str, deployment: dict[str, Any], paper_csv: str
+) -> None:
+    """The link carries a token: built from the request's Host header, a forged Host would send
+    it to the attacker's server. It is relative, or under ROADLINK_PUBLIC_URL."""
+    from roadlink.api import create_app
+
+    auth = {"Authorization": f"Bearer {admin_key}"}
+    for public_url, expected in [
+        (None, "/jobs/"),
+        ("https://roadlink.example/traffic/", "https://roadlink.example/traffic/jobs/"),
+    ]:
+        app = create_app(settings.model_copy(update={"public_url": public_url}), engine=engine)
+        with TestClient(app, headers=auth) as http:
+            job = _post(http, deployment["id"], paper_csv)
+            made = http.post(f"/v1/jobs/{job}/page-link", headers={"Host": "evil.example"})
+            assert made.status_code == 201, made.text
+            url = made.json()["url"]
+            assert url.startswith(f"{expected}{job}?token=") and "evil" not in url

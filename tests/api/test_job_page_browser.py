@@ -118,7 +118,7 @@ def test_the_job_page_in_chromium(server: tuple[str, str], tmp_path: Path) -> No
         job = batch.json()["job"]["id"]
         result = http.get(f"/v1/jobs/{job}/result", params={"wait": 30})
         assert result.status_code == 200, result.text
-        link = http.post(f"/v1/jobs/{job}/page-link").json()["url"]
+        link = url + http.post(f"/v1/jobs/{job}/page-link").json()["url"]  # a path: no public URL
 
     dumped = _chromium(tmp_path / "profile-dom", "--dump-dom", link)
     assert dumped.returncode == 0, dumped.stderr[-2000:]

@@ -483,7 +483,7 @@ class PageLinkRead(BaseModel):
         json_schema_extra={
             "examples": [
                 {
-                    "url": f"http://127.0.0.1:8000/jobs/{EXAMPLE_ID}?token=d74a2839.1767272400.Xq3...",
+                    "url": f"/jobs/{EXAMPLE_ID}?token=d74a2839.1767272400.Xq3...",
                     "expires_at": "2026-01-01T13:00:00Z",
                 }
             ]
@@ -492,7 +492,8 @@ class PageLinkRead(BaseModel):
 
     url: str = Field(
         description="The page, with a token that lets whoever holds the link see this one job's "
-        "page until it expires or the key that made it is revoked."
+        "page until it expires or the key that made it is revoked. Absolute under the "
+        "configured ROADLINK_PUBLIC_URL; else a path on the server that was asked."
     )
     expires_at: datetime | None = Field(
         description="When the link stops working; null when authentication is disabled (the "

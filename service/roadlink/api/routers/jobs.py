@@ -44,6 +44,7 @@ from roadlink.db.models import ApiKey, Job, JobState
 from roadlink.plots import PlotFormat, PlotKind
 from roadlink.queue.jobs import cancel_job, enqueue_job
 from roadlink.queue.wakeup import FinishedJobs
+from roadlink.settings import Settings
 
 
 @asynccontextmanager
@@ -401,6 +402,7 @@ def create_page_link(
     job_id: uuid.UUID,
     request: Request,
     session: SessionDep,
+    settings: SettingsDep,
     expires_in: Annotated[
         int,
         Query(
@@ -416,7 +418,7 @@ def create_page_link(
     that asked for it is revoked. Anyone holding the link can read the page until then, so
     share it as you would the result."""
     _require_job(session, job_id)
-    url = str(request.url_for("job_page", job_id=str(job_id)))
+    url = page_url(settings, job_id)
     principal = principal_of(request)
     key = None if principal.prefix is None else session.get(ApiKey, uuid.UUID(principal.id))
     if key is None:  # authentication is disabled: the page needs no token
@@ -451,6 +453,14 @@ def cancel(job_id: uuid.UUID, session: SessionDep) -> JobRead:
     session.commit()
     session.expire_all()
     return JobRead.model_validate(_require_job(session, job_id))
+
+
+def page_url(settings: Settings, job_id: uuid.UUID) -> str:
+    """The job page's address: under ROADLINK_PUBLIC_URL when set, else relative to the server
+    the client asked. Never built from the request's Host header, which the client chooses: a
+    link with a token in it must not point at a host an attacker named."""
+    path = f"/jobs/{job_id}"
+    return path if settings.public_url is None else settings.public_url.rstrip("/") + path
 
 
 def _require_job(session: Session, job_id: uuid.UUID) -> Job:
