@@ -193,6 +193,11 @@ def authorize(
                 headers={"Retry-After": retry_after_header(wait)},
             )
     _check_rule(request, session, principal)
+    # Hand the connection back to the pool now: the session lives as long as the request, and a
+    # request that waits (`?wait=` on a result) must not hold a connection while it waits, or a
+    # few of them take the pool from everyone. A handler that uses the session gets another.
+    # (Nothing was written: the commit only ends the read, keeping what it loaded.)
+    session.commit()
     return principal
 
 
