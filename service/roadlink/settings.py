@@ -93,6 +93,13 @@ class Settings(BaseSettings):
     max_batch_detections: int = Field(
         default=1_000_000, gt=0, description="Most detections one batch may hold (422 beyond)."
     )
+    max_view_detections: int = Field(
+        default=200_000,
+        gt=0,
+        description="Largest job (in detections) whose result the API draws or localises: the "
+        "plot, positions and targets routes and the job page's plot and tables. Larger jobs are "
+        "413 there (the page says so); their result is read whole from GET /v1/jobs/{id}/result.",
+    )
     public_url: str | None = Field(
         default=None,
         pattern=r"^https?://[^\s/?#]+(/[^\s?#]*)?$",

@@ -254,3 +254,36 @@ def test_the_route_names_follow_the_contract(client: TestClient) -> None:
         "jobs-get_target",
         "jobs-create_page_link",
     }
+
+
+def test_every_view_of_a_result_past_the_limit_is_refused_before_it_is_read(
+    settings: Any,
+    engine: Engine,
+    admin_key: str,
+    done: dict[str, Any],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Drawing or localising a million detections took the API minutes of CPU and gigabytes; past
+    ROADLINK_MAX_VIEW_DETECTIONS the views say so at once, without reading the result."""
+    from roadlink.api import create_app
+
+    def never(*_args: object, **_kwargs: object) -> None:
+        raise AssertionError("the result was read")
+
+    monkeypatch.setattr(repository, "load_job_association", never)
+    job = done["job"]["id"]  # 100 detections
+    small = settings.model_copy(update={"max_view_detections": 99})
+    with TestClient(create_app(small, engine=engine), headers=bearer(admin_key)) as http:
+        for path, params in [
+            ("plot", {}),
+            ("plot", {"format": "svg", "kind": "backprojected"}),
+            ("positions", {"t": 10}),
+            ("targets/T1", {}),
+        ]:
+            problem = assert_problem(http.get(f"/v1/jobs/{job}/{path}", params=params), 413)
+            assert "ROADLINK_MAX_VIEW_DETECTIONS" in problem["detail"]
+            assert f"/v1/jobs/{job}/result" in problem["detail"]
+        page = http.get(f"/jobs/{job}")
+        assert page.status_code == 200 and 'id="too-large"' in page.text
+        assert "100 detections" in page.text and 'id="plot"' not in page.text
+        assert http.get(f"/v1/jobs/{job}/result").status_code == 200  # read whole, as stored

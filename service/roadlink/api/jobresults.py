@@ -18,7 +18,7 @@ from typing import Annotated
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
 
-from roadlink.api.deps import SessionDep
+from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem
 from roadlink.association.localisation import Track, target_tracks
 from roadlink.association.result import AssociationResult
@@ -90,8 +90,17 @@ class JobResultCache:
             return entry
 
 
-def job_result(session: Session, cache: JobResultCache, job_id: uuid.UUID) -> CachedResult:
-    """The result of a succeeded job; 404 for an unknown job, 409 for an unfinished one."""
+def job_result(
+    session: Session, cache: JobResultCache, job_id: uuid.UUID, max_detections: int
+) -> CachedResult:
+    """The result of a succeeded job; 404 for an unknown job, 409 for an unfinished one, 413
+    for one of more than `max_detections` detections.
+
+    Every view of a result (plot, positions, targets, the job page) reads it here, so this is
+    the one bound on what a read of a result may cost the API: rebuilding, drawing or
+    localising a million detections takes minutes of CPU and gigabytes, which no request may
+    start. Such results are read whole, as stored, from the result route.
+    """
 
     def load() -> AssociationResult | None:
         job = repository.get_job(session, job_id=job_id)
@@ -99,12 +108,24 @@ def job_result(session: Session, cache: JobResultCache, job_id: uuid.UUID) -> Ca
             raise ApiProblem(404, f"there is no job {job_id}")
         if job.state != JobState.SUCCEEDED.value:
             raise ApiProblem(409, unfinished_detail(job))
+        if job.n_detections is not None and job.n_detections > max_detections:
+            raise too_large_to_view(job.id, job.n_detections, max_detections)
         return repository.load_job_association(session, job=job)
 
     entry = cache.get(job_id, load)
     if entry is None:  # succeeded without a result cannot happen: both commit together
         raise ApiProblem(500, f"job {job_id} succeeded but its result is missing")
     return entry
+
+
+def too_large_to_view(job_id: uuid.UUID, n_detections: int, limit: int) -> ApiProblem:
+    """The refusal to draw or localise a result past the limit."""
+    return ApiProblem(
+        413,
+        f"job {job_id} has {n_detections} detections; plots, positions, targets and the job "
+        f"page are made for at most {limit} (ROADLINK_MAX_VIEW_DETECTIONS): read its result "
+        f"from GET /v1/jobs/{job_id}/result (JSON, or ?format=csv)",
+    )
 
 
 def unfinished_detail(job: Job) -> str:
@@ -128,10 +149,11 @@ def get_job_result_cache(request: Request) -> JobResultCache:
 def get_succeeded_job_result(
     job_id: uuid.UUID,
     session: SessionDep,
+    settings: SettingsDep,
     cache: Annotated[JobResultCache, Depends(get_job_result_cache)],
 ) -> CachedResult:
-    """The `job_id` path parameter's result (404 / 409 as `job_result`)."""
-    return job_result(session, cache, job_id)
+    """The `job_id` path parameter's result (404 / 409 / 413 as `job_result`)."""
+    return job_result(session, cache, job_id, settings.max_view_detections)
 
 
 SucceededJobDep = Annotated[CachedResult, Depends(get_succeeded_job_result)]

@@ -302,7 +302,7 @@ RESULT_CACHE_CONTROL = "private, max-age=86400"
                 "image/svg+xml": {"schema": {"type": "string"}},
             },
         },
-        **problem_responses(404, 409, 422),
+        **problem_responses(404, 409, 413, 422),
     },
     summary="Plot a job's result",
 )
@@ -332,7 +332,7 @@ def get_plot(
     "/{job_id}/positions",
     name="get_positions",
     response_model=PositionsRead,
-    responses=problem_responses(404, 409, 422),
+    responses=problem_responses(404, 409, 413, 422),
     summary="Where every target is at a time",
 )
 def get_positions(
@@ -358,7 +358,7 @@ def get_positions(
     "/{job_id}/targets/{target}",
     name="get_target",
     response_model=TargetTrajectoryRead,
-    responses=problem_responses(404, 409, 422),
+    responses=problem_responses(404, 409, 413, 422),
     summary="One target's trajectory, travel times and mean speeds",
 )
 def get_target(

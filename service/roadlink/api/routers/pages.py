@@ -32,6 +32,7 @@ from sqlalchemy.orm import Session
 
 from roadlink.api.auth import POLICY, permits, principal_of_key
 from roadlink.api.deps import SessionDep, SettingsDep
+from roadlink.api.errors import ApiProblem
 from roadlink.api.jobresults import CachedResult, JobResultCache, job_result
 from roadlink.api.pagelinks import token_key
 from roadlink.api.ratelimit import TokenBuckets, retry_after_header
@@ -119,7 +120,14 @@ def job_page(
     }
     if job.state == JobState.SUCCEEDED.value:
         cache: JobResultCache = request.app.state.job_results
-        context["view"] = _result_view(job_result(session, cache, parsed), kind)
+        try:
+            cached = job_result(session, cache, parsed, settings.max_view_detections)
+        except ApiProblem as refused:
+            if refused.status != 413:
+                raise
+            context["view_refused"] = refused.detail
+        else:
+            context["view"] = _result_view(cached, kind)
     html = _templates.get_template("job.html").render(context)
     return HTMLResponse(html, headers=SECURITY_HEADERS)
 
