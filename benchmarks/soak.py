@@ -10,15 +10,17 @@ mix, not the limiter, is measured) gets, from each client in turn:
   from two threads (a gateway retrying while its first try is in flight);
 - a job over the batches it posted, also under an `Idempotency-Key`, posted twice;
 - `GET /v1/jobs/{id}/result?wait=S`, the result as CSV, its plot and positions.
-A probe requests `/healthz` every 0.2 s throughout. Reports the status counts, every 5xx and
-transport error, and the probe's latency percentiles; exits 1 when any answer was 5xx or lost, or
-when the probe's slowest answer exceeded `--healthz-limit` seconds.
+A probe, in a process of its own, requests `/healthz` every 0.2 s throughout. Reports the status
+counts, every 5xx and transport error, and the probe's latency percentiles; exits 1 when any
+answer was 5xx or lost, or when the probe's slowest answer exceeded `--healthz-limit` seconds.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
+import multiprocessing.queues
 import os
 import random
 import tempfile
@@ -164,15 +166,33 @@ def _client(
             _call(tally, "positions", http, "GET", f"/v1/jobs/{job}/positions", params={"t": 10})
 
 
-def _probe(url: str, stop_at: float, tally: Tally) -> None:
+def _probe(url: str, seconds: float, results: multiprocessing.queues.Queue) -> None:
+    """In a process of its own, so that the clients' threads cannot delay its measurements:
+    (status or error, seconds) of a /healthz request every PROBE_INTERVAL."""
+    stop_at = time.monotonic() + seconds
+    answers: list[tuple[str, float]] = []
     with httpx.Client(base_url=url, timeout=30) as http:
         while time.monotonic() < stop_at:
             began = time.perf_counter()
-            answer = _call(tally, "healthz", http, "GET", "/healthz")
-            if answer is not None:
-                with tally.lock:
-                    tally.probe_seconds.append(time.perf_counter() - began)
+            try:
+                status = str(http.get("/healthz").status_code)
+            except httpx.HTTPError as exc:
+                status = repr(exc)
+            answers.append((status, time.perf_counter() - began))
             time.sleep(PROBE_INTERVAL)
+    results.put(answers)
+
+
+def _record_probe(answers: list[tuple[str, float]], tally: Tally) -> None:
+    for status, seconds in answers:
+        if status.isdigit():
+            tally.statuses[f"healthz {status}"] += 1
+            tally.probe_seconds.append(seconds)
+            if int(status) >= 500:
+                tally.failures.append(f"healthz: {status}")
+        else:
+            tally.statuses["healthz lost"] += 1
+            tally.failures.append(f"healthz: {status}")
 
 
 def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
@@ -194,9 +214,13 @@ def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
             answer = http.post("/v1/deployments", json={"name": "soak"})
             answer.raise_for_status()
             deployment = answer.json()["id"]
+        results: multiprocessing.queues.Queue = multiprocessing.get_context("spawn").Queue()
+        prober = multiprocessing.get_context("spawn").Process(
+            target=_probe, args=(server.url, seconds, results)
+        )
+        prober.start()
         stop_at = time.monotonic() + seconds
-        threads = [threading.Thread(target=_probe, args=(server.url, stop_at, tally))]
-        threads += [
+        threads = [
             threading.Thread(
                 target=_client, args=(k, server.url, admin, deployment, stop_at, wait, tally)
             )
@@ -206,6 +230,8 @@ def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
             thread.start()
         for thread in threads:
             thread.join()
+        _record_probe(results.get(timeout=seconds + 120), tally)
+        prober.join()
     finally:
         server.stop()
     probe = np.array(tally.probe_seconds) if tally.probe_seconds else np.array([np.nan])
@@ -219,6 +245,7 @@ def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
         "healthz_p50_ms": round(float(np.percentile(probe, 50)) * 1000, 1),
         "healthz_p99_ms": round(float(np.percentile(probe, 99)) * 1000, 1),
         "healthz_max_ms": round(float(probe.max()) * 1000, 1),
+        "healthz_over_100ms": int((probe > 0.1).sum()),
         "cpus": os.cpu_count(),
     }
 

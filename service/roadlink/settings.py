@@ -94,7 +94,7 @@ class Settings(BaseSettings):
         default=1_000_000, gt=0, description="Most detections one batch may hold (422 beyond)."
     )
     max_view_detections: int = Field(
-        default=200_000,
+        default=50_000,
         gt=0,
         description="Largest job (in detections) whose result the API draws or localises: the "
         "plot, positions and targets routes and the job page's plot and tables. Larger jobs are "

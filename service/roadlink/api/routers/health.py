@@ -15,8 +15,8 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz", name="live", response_model=HealthRead, summary="Liveness")
-def healthz() -> HealthRead:
-    """The process is up and answering."""
+async def healthz() -> HealthRead:
+    """The process is up and answering (on the event loop itself: no thread, no database)."""
     return HealthRead()
 
 
