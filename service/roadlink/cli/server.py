@@ -100,8 +100,8 @@ def _exit_on_sigterm() -> None:
     and raises the signal again, which, left at the default, is that on-the-spot kill.
     """
 
-    def leave(signum: int, _frame: object) -> None:
-        raise SystemExit(128 + signum)
+    def leave(_signum: int, _frame: object) -> None:
+        raise SystemExit(0)  # a stop that was asked for, and done, is a success
 
     signal.signal(signal.SIGTERM, leave)
 
