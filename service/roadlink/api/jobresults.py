@@ -31,8 +31,8 @@ from roadlink.plots import render_plot
 CACHE_DETECTIONS = 100_000
 """Detections the cache may hold across jobs (a few hundred bytes each, with their tracks);
 the most recent result is kept whatever its size. Everything cached is walked by each full
-garbage collection, which stops every request meanwhile: at 500,000 that took 100-150 ms
-(benchmarks/soak.py), so the budget is kept to what a few jobs that people look at need."""
+garbage collection, which stops every request meanwhile, so the budget is kept to what the few
+jobs that people look at need."""
 
 
 class CachedResult:
