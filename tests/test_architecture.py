@@ -91,6 +91,21 @@ def test_the_core_imports_no_web_database_or_command_line_library(part: str) -> 
         assert not libraries, f"{path.relative_to(PACKAGE)} imports {sorted(libraries)}"
 
 
+ROUTERS = PACKAGE / "api" / "routers"
+
+
+@pytest.mark.parametrize("path", sorted(ROUTERS.glob("*.py")), ids=lambda p: p.name)
+def test_no_router_imports_another_router(path: Path) -> None:
+    """What several routers need lives below them (roadlink/api/services.py and the like), so
+    that each router reads on its own."""
+    routers = {
+        name
+        for name in imported(path)
+        if name.startswith("roadlink.api.routers") and name != "roadlink.api.routers"
+    }
+    assert not routers, f"{path.name} imports {sorted(routers)}"
+
+
 def test_the_reader_resolves_absolute_relative_and_nested_imports() -> None:
     source = "import sqlalchemy\nfrom ..db import models\nfrom . import metrics\n"
     source += "def f():\n    from roadlink.api.errors import ApiProblem\n"

@@ -7,10 +7,10 @@ import uuid
 from fastapi import APIRouter, Query
 
 from roadlink.api.deps import SessionDep
-from roadlink.api.errors import ApiProblem, problem_responses
+from roadlink.api.errors import problem_responses
 from roadlink.api.schemas import DeploymentCreate, DeploymentRead
+from roadlink.api.services import require_deployment
 from roadlink.db import repository
-from roadlink.db.models import Deployment
 
 router = APIRouter(prefix="/v1/deployments", tags=["deployments"])
 
@@ -60,11 +60,3 @@ def list_deployments(
 def get_deployment(deployment_id: uuid.UUID, session: SessionDep) -> DeploymentRead:
     """One deployment."""
     return DeploymentRead.model_validate(require_deployment(session, deployment_id))
-
-
-def require_deployment(session: SessionDep, deployment_id: uuid.UUID) -> Deployment:
-    """The deployment, or 404 naming it."""
-    deployment = repository.get_deployment(session, deployment_id=deployment_id)
-    if deployment is None:
-        raise ApiProblem(404, f"there is no deployment {deployment_id}")
-    return deployment

@@ -27,7 +27,6 @@ from roadlink.api.idempotency import (
 )
 from roadlink.api.jobresults import SucceededJobDep, unfinished_detail
 from roadlink.api.pagelinks import DEFAULT_LIFETIME_SECONDS, MAX_LIFETIME_SECONDS, page_token
-from roadlink.api.routers.batches import checked_associate
 from roadlink.api.schemas import (
     AssociateRequest,
     AssociationResultRead,
@@ -38,6 +37,7 @@ from roadlink.api.schemas import (
     TargetPositionRead,
     TargetTrajectoryRead,
 )
+from roadlink.api.services import checked_associate
 from roadlink.association.localisation import positions_at, target_index, target_trajectory
 from roadlink.db import repository
 from roadlink.db.models import ApiKey, Job, JobState

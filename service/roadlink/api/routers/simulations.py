@@ -10,9 +10,8 @@ from pydantic import BaseModel, ValidationError
 
 from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem, ProblemItem, problem_responses
-from roadlink.api.routers.batches import read_batch, store_batch
-from roadlink.api.routers.deployments import require_deployment
 from roadlink.api.schemas import BatchRead, SimulationCreate
+from roadlink.api.services import read_batch, require_deployment, store_batch
 from roadlink.association.detections import Detections
 from roadlink.simulation import preset, simulate
 
