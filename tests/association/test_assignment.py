@@ -44,7 +44,11 @@ def grouping(d: Detections) -> np.ndarray:
 
 
 def test_is_the_default_associator():
-    assert DEFAULT_ASSOCIATOR == "assignment"
+    """`associate` without a name runs `assignment`, with the same answer as naming it."""
+    d = simulate(preset("medium"), seed=3).detections
+    default = associate(d)
+    assert DEFAULT_ASSOCIATOR == "assignment" and default.associator == "assignment"
+    assert default.to_dict() == associate(d, "assignment").to_dict()
 
 
 @pytest.mark.parametrize("name", ["large", "medium", "small"])
@@ -132,13 +136,17 @@ def test_velocity_near_zero_at_a_sensor_does_not_break_the_track():
     velocity[target] = 0.01
     crawl = Detections(d.position, velocity, d.timestamp, d.sensor_id, d.detection_id, d.target)
     groups = grouping(crawl)
-    assert np.isfinite(groups).all()
-    others = crawl.target != "A3"
     result = associate(crawl, "assignment")
     assert result.metrics is not None and result.metrics.accuracy >= 0.99
     a3 = groups[crawl.target == "A3"]
-    assert np.unique(a3[a3 >= 0]).size == 1, "the crawl must not split the target"
-    assert (groups[others] >= 0).all()
+    # The track holds together around the crawling report, and nothing else is lost. The report
+    # itself is left unassigned today: at a steady 30 m/s elsewhere, its 0.01 m/s reads as a
+    # fault (real queues report such speeds for whole runs of vehicles; docs/sumo.md).
+    assert groups[target] == -1
+    a3_elsewhere = a3[a3 >= 0]
+    assert a3_elsewhere.size == np.sum(crawl.target == "A3") - 1
+    assert np.unique(a3_elsewhere).size == 1, "the crawl must not split the target"
+    assert (groups[crawl.target != "A3"] >= 0).all()
 
 
 def test_two_sensors_only():

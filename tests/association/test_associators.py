@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from roadlink.association import DetectionError, Detections, associate
+from roadlink.association import Detections, associate
 from roadlink.association.associators import ASSOCIATORS, AssociationError
 from roadlink.association.associators.kmeans import estimate_target_count, kmeanspp_centres
 from roadlink.association.backprojection import backprojected_features
@@ -185,9 +185,10 @@ def test_unknown_associator_lists_the_known_ones():
         associate(paper_data(), "nope")
 
 
-def test_empty_input_is_refused():
-    with pytest.raises((AssociationError, DetectionError)):
-        associate(Detections.from_columns([], [], []), "kmeans")
+@pytest.mark.parametrize("name", ["kmeans", "kmeans++", "assignment", "svm-linear"])
+def test_empty_input_is_refused_saying_so(name):
+    with pytest.raises(AssociationError, match="there are no detections to associate"):
+        associate(Detections.from_columns([], [], []), name)
 
 
 def test_raw_features_are_the_unprocessed_timestamps():
