@@ -4,26 +4,32 @@ each test run creates and drops its own uniquely named database there."""
 
 from __future__ import annotations
 
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
 from roadlink.api import create_app
+from roadlink.association.csvio import write_detections_csv
+from roadlink.association.detections import Detections
 from roadlink.db.apikeys import create_api_key
 from roadlink.db.engine import make_engine, make_session_factory, transaction
 from roadlink.db.migrate import upgrade_to_head
 from roadlink.db.models import ApiKeyScope
 from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
+from roadlink.simulation import preset, simulate
 from tests.databases import (
     BACKENDS,
     create_postgres_database,
     drop_postgres_database,
     require_postgres,
 )
+from tests.helpers import MakeKey
 
 TABLES_CHILD_FIRST = (
     "job_idempotency_key",
@@ -118,3 +124,37 @@ def worker(settings: Settings, engine: Engine) -> Iterator[Worker]:
     worker = Worker(settings, engine=engine)
     yield worker
     worker.close()
+
+
+@pytest.fixture
+def paper_batch() -> Detections:
+    """The paper's large scenario: 10 targets, 10 sensors 100 m apart, labelled."""
+    return simulate(preset("large"), seed=5).detections
+
+
+@pytest.fixture
+def paper_csv(paper_batch: Detections) -> str:
+    return write_detections_csv(paper_batch)
+
+
+@pytest.fixture
+def deployment(client: TestClient) -> dict[str, Any]:
+    """A deployment without declared sensors, made through the API."""
+    response = client.post("/v1/deployments", json={"name": "test road"})
+    assert response.status_code == 201, response.text
+    return dict(response.json())
+
+
+@pytest.fixture
+def make_key(engine: Engine) -> MakeKey:
+    """Create a key of `scope` (ingest keys name their deployments); returns the key."""
+
+    def make(scope: str, *deployments: str) -> str:
+        with transaction(make_session_factory(engine)) as session:
+            return create_api_key(
+                session,
+                scope=ApiKeyScope(scope),
+                deployment_ids=[uuid.UUID(d) for d in deployments],
+            ).key
+
+    return make

@@ -8,7 +8,7 @@ from fastapi.testclient import TestClient
 
 from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR
 from roadlink.queue.worker import Worker
-from tests.api.conftest import assert_problem
+from tests.helpers import assert_problem
 
 
 def test_associators_list_every_registered_one_with_its_parameters(client: TestClient) -> None:

@@ -10,7 +10,7 @@ from sqlalchemy import Engine, func, select
 
 from roadlink.association.detections import Detections
 from roadlink.db.models import Batch, Detection, Job
-from tests.api.conftest import assert_problem, detection_rows
+from tests.helpers import assert_problem, detection_rows
 
 
 def _counts(engine: Engine) -> tuple[int, int, int]:

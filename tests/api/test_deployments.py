@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi.testclient import TestClient
 
-from tests.api.conftest import assert_problem
+from tests.helpers import assert_problem
 
 
 def test_create_get_and_list(client: TestClient) -> None:

@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from roadlink.api import create_app
 from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
-from tests.api.conftest import assert_problem
+from tests.helpers import assert_problem
 
 
 def test_healthz_and_readyz(client: TestClient) -> None:

@@ -20,8 +20,7 @@ from roadlink.db.engine import make_session_factory, transaction
 from roadlink.db.models import Job
 from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
-from tests.api.conftest import MakeKey
-from tests.security.conftest import bearer
+from tests.helpers import MakeKey, bearer
 
 
 class Page(HTMLParser):

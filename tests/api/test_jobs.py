@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.cli import app as cli
 from roadlink.queue.worker import Worker
-from tests.api.conftest import assert_problem
+from tests.helpers import assert_problem
 
 
 @pytest.fixture

@@ -23,8 +23,7 @@ from roadlink.association.result import AssociationResult
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory
 from roadlink.queue.worker import Worker
-from tests.api.conftest import MakeKey, assert_problem
-from tests.security.conftest import bearer
+from tests.helpers import MakeKey, assert_problem, bearer
 
 SVG = "{http://www.w3.org/2000/svg}"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import uuid
-from collections.abc import Callable
 
 import pytest
 from sqlalchemy import Engine
@@ -14,9 +13,8 @@ from roadlink.db import repository
 from roadlink.db.engine import make_session_factory, transaction
 from roadlink.queue import enqueue_job
 from roadlink.simulation import preset, simulate
+from tests.helpers import EnqueueJob
 from tests.queue import associators_for_tests
-
-EnqueueJob = Callable[..., uuid.UUID]
 
 
 @pytest.fixture

@@ -23,7 +23,7 @@ from roadlink.queue import (
     heartbeat_job,
     rescue_expired_jobs,
 )
-from tests.queue.conftest import EnqueueJob
+from tests.helpers import EnqueueJob
 
 
 def _claim(sessions: sessionmaker[Session], worker_id: str, **kwargs: object) -> ClaimedJob | None:

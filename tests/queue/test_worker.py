@@ -21,7 +21,7 @@ from roadlink.db import repository
 from roadlink.db.models import Job
 from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
-from tests.queue.conftest import EnqueueJob
+from tests.helpers import EnqueueJob
 
 pytestmark = pytest.mark.usefixtures("test_associators")
 

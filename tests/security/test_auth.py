@@ -21,8 +21,7 @@ from roadlink.association.detections import Detections
 from roadlink.cli import app as cli
 from roadlink.db.apikeys import key_sha256
 from roadlink.settings import Settings
-from tests.api.conftest import assert_problem
-from tests.security.conftest import MakeKey, bearer
+from tests.helpers import MakeKey, assert_problem, bearer
 
 
 def v1_routes(client: TestClient) -> list[tuple[str, str]]:

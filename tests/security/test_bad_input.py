@@ -13,8 +13,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
 from roadlink.association.detections import Detections
-from tests.api.conftest import assert_problem, detection_rows
-from tests.security.conftest import row_counts
+from tests.helpers import assert_problem, detection_rows, row_counts
 
 SENSORS = [{"sensor_id": f"S{k + 1}", "position": 100.0 * k} for k in range(10)]
 

@@ -15,7 +15,8 @@ import pytest
 
 from roadlink.association.csvio import write_detections_csv
 from roadlink.simulation import preset, simulate
-from tests.security.conftest import LiveServer, bearer, roadlink
+from tests.helpers import bearer
+from tests.live_server import LiveServer, roadlink
 
 pytestmark = pytest.mark.slow
 

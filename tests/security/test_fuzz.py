@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.security.conftest import LiveServer, roadlink
+from tests.live_server import LiveServer, roadlink
 
 pytestmark = pytest.mark.slow
 

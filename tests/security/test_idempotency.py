@@ -13,8 +13,7 @@ from roadlink.api.idempotency import forget_expired_keys
 from roadlink.db.engine import make_session_factory
 from roadlink.db.models import Batch, JobIdempotencyKey, utcnow
 from roadlink.settings import Settings
-from tests.api.conftest import assert_problem
-from tests.security.conftest import MakeKey, bearer, row_counts
+from tests.helpers import MakeKey, assert_problem, bearer, row_counts
 
 
 def _batch(client: TestClient, deployment: dict[str, Any], csv: str, key: str | None) -> Any:
