@@ -33,7 +33,6 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.references import REFERENCES
 from roadlink.association import associate
 from roadlink.association.associators import ASSOCIATORS
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
@@ -48,6 +47,11 @@ from roadlink.simulation.sumo import (
     run_sumo,
     sumo_scenario,
 )
+
+try:
+    from benchmarks.references import REFERENCES
+except ModuleNotFoundError:  # run as a script (python benchmarks/sumo_accuracy.py): its folder
+    from references import REFERENCES  # type: ignore[no-redef]  # is on the path
 
 RESULTS = Path(__file__).parent / "results" / "sumo_accuracy.json"
 
