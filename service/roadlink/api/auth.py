@@ -179,20 +179,7 @@ def authorize(
             "the API key is unknown or revoked",
             headers={"WWW-Authenticate": f'{REALM}, error="invalid_token"'},
         )
-    principal = principal_of_key(row)
-    request.state.principal = principal
-    buckets: TokenBuckets | None = request.app.state.rate_limits
-    if buckets is not None:
-        wait = buckets.take(principal.id)
-        if wait > 0:
-            raise ApiProblem(
-                429,
-                f"API key {principal.prefix} is over its rate limit of "
-                f"{settings.rate_limit_per_second:g} requests per second (bursts of "
-                f"{settings.rate_limit_burst}); retry after {retry_after_header(wait)} s",
-                headers={"Retry-After": retry_after_header(wait)},
-            )
-    _check_rule(request, session, principal)
+    principal = admit(request, session, row)
     # Hand the connection back to the pool now: the session lives as long as the request, and a
     # request that waits (`?wait=` on a result) must not hold a connection while it waits, or a
     # few of them take the pool from everyone. A handler that uses the session gets another.
@@ -201,16 +188,63 @@ def authorize(
     return principal
 
 
-def _check_rule(request: Request, session: Session, principal: Principal) -> None:
-    route = request.scope.get("route")
-    template = getattr(route, "path", None)
-    rule = POLICY.get((request.method, str(template)))
+def admit(
+    request: Request,
+    session: Session,
+    key: ApiKey,
+    *,
+    as_route: tuple[str, str] | None = None,
+    path_params: dict[str, str] | None = None,
+) -> Principal:
+    """The caller an authenticated API key stands for, once within its rate limit and allowed by
+    the access rule of the route called; or of `as_route` (method, path template) with
+    `path_params`, for a page outside /v1 that shows what that /v1 route returns. Raises the
+    429 or 403 problem otherwise."""
+    principal = principal_of_key(key)
+    request.state.principal = principal
+    buckets: TokenBuckets | None = request.app.state.rate_limits
+    if buckets is not None:
+        wait = buckets.take(principal.id)
+        if wait > 0:
+            settings = request.app.state.settings
+            raise ApiProblem(
+                429,
+                f"API key {principal.prefix} is over its rate limit of "
+                f"{settings.rate_limit_per_second:g} requests per second (bursts of "
+                f"{settings.rate_limit_burst}); retry after {retry_after_header(wait)} s",
+                headers={"Retry-After": retry_after_header(wait)},
+            )
+    _check_rule(request, session, principal, as_route, path_params)
+    return principal
+
+
+def bearer_key(session: Session, authorization: str | None) -> ApiKey | None:
+    """The live API key of an `Authorization: Bearer <key>` header value, if it holds one."""
+    scheme, _, credentials = (authorization or "").partition(" ")
+    if scheme.lower() != "bearer" or not credentials.strip():
+        return None
+    return authenticate_api_key(session, key=credentials.strip())
+
+
+def _check_rule(
+    request: Request,
+    session: Session,
+    principal: Principal,
+    as_route: tuple[str, str] | None = None,
+    path_params: dict[str, str] | None = None,
+) -> None:
+    if as_route is None:
+        method, template = request.method, str(getattr(request.scope.get("route"), "path", None))
+        path_params = dict(request.path_params)
+    else:
+        (method, template), path_params = as_route, dict(path_params or {})
+    rule = POLICY.get((method, template))
     if rule is None:  # check_policy_covers makes this unreachable; fail closed regardless
         raise ApiProblem(403, "this route has no access rule; no key may call it")
-    if permits(rule, session, principal, dict(request.path_params)):
+    if permits(rule, session, principal, path_params):
         return
     if principal.scope in rule.allows and rule.deployment_of is not None:
-        deployment = rule.deployment_of(session, dict(request.path_params))
+        deployment = rule.deployment_of(session, path_params)
         raise ApiProblem(
             403,
             f"API key {principal.prefix} may not use deployment {deployment}; it is an ingest "
@@ -220,7 +254,7 @@ def _check_rule(request: Request, session: Session, principal: Principal) -> Non
     raise ApiProblem(
         403,
         f"API key {principal.prefix} has scope '{principal.scope.value}'; "
-        f"{request.method} {template} needs {rule.describe()}",
+        f"{method} {template} needs {rule.describe()}",
         headers={"WWW-Authenticate": f'{REALM}, error="insufficient_scope"'},
     )
 

@@ -30,15 +30,13 @@ from jinja2 import Environment, FileSystemLoader, select_autoescape
 from markupsafe import Markup
 from sqlalchemy.orm import Session
 
-from roadlink.api.auth import POLICY, permits, principal_of_key
+from roadlink.api.auth import admit, bearer_key
 from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem
 from roadlink.api.jobresults import CachedResult, JobResultCache, job_result
 from roadlink.api.pagelinks import token_key
-from roadlink.api.ratelimit import TokenBuckets, retry_after_header
 from roadlink.association.metrics import wrongly_grouped
 from roadlink.db import repository
-from roadlink.db.apikeys import authenticate_api_key
 from roadlink.db.models import ApiKey, JobState
 from roadlink.plots import PLOT_KINDS, target_colours
 
@@ -144,10 +142,7 @@ def _check_access(request: Request, session: Session, job_id: uuid.UUID, token: 
                 f"POST /v1/jobs/{job_id}/page-link.",
             )
     else:
-        scheme, _, credentials = request.headers.get("authorization", "").partition(" ")
-        key = None
-        if scheme.lower() == "bearer" and credentials:
-            key = authenticate_api_key(session, key=credentials.strip())
+        key = bearer_key(session, request.headers.get("authorization"))
         if key is None:
             raise PageDenied(
                 401,
@@ -156,20 +151,18 @@ def _check_access(request: Request, session: Session, job_id: uuid.UUID, token: 
                 "in a browser (or send the key as Authorization: Bearer).",
                 {"WWW-Authenticate": 'Bearer realm="roadlink"'},
             )
-    principal = principal_of_key(key)
-    buckets: TokenBuckets | None = request.app.state.rate_limits
-    if buckets is not None:
-        wait = buckets.take(principal.id)
-        if wait > 0:
-            raise PageDenied(
-                429,
-                f"Too many requests with API key {key.prefix}; retry in "
-                f"{retry_after_header(wait)} s.",
-                {"Retry-After": retry_after_header(wait)},
-            )
-    rule = POLICY[("GET", "/v1/jobs/{job_id}")]
-    if not permits(rule, session, principal, {"job_id": str(job_id)}):
-        raise PageDenied(403, f"API key {key.prefix} may not read job {job_id}.")
+    # The page shows what GET /v1/jobs/{job_id} and its result routes show: the same key, rate
+    # limit and rule decide, in the one place that decides for the API.
+    try:
+        admit(
+            request,
+            session,
+            key,
+            as_route=("GET", "/v1/jobs/{job_id}"),
+            path_params={"job_id": str(job_id)},
+        )
+    except ApiProblem as refused:
+        raise PageDenied(refused.status, refused.detail, refused.headers) from None
 
 
 @dataclass
