@@ -43,7 +43,7 @@ from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.db import repository
 from roadlink.db.engine import make_engine, make_session_factory, transaction
 from roadlink.db.migrate import upgrade_to_head
-from roadlink.db.models import Job
+from roadlink.db.models import Job, JobState
 from roadlink.queue import enqueue_job
 from roadlink.queue.worker import run_worker_process
 from roadlink.settings import Settings
@@ -150,8 +150,8 @@ class Queue:
                         select(Job.state, func.count()).where(Job.id.in_(ids)).group_by(Job.state)
                     ).all()
                 )
-            if not states.get("queued") and not states.get("running"):
-                if set(states) != {"succeeded"}:
+            if not states.get(JobState.QUEUED) and not states.get(JobState.RUNNING):
+                if set(states) != {JobState.SUCCEEDED}:
                     raise RuntimeError(f"jobs did not all succeed: {states}")
                 return
             if time.monotonic() > deadline:

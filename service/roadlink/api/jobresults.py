@@ -132,7 +132,7 @@ def job_result(
         job = repository.get_job(session, job_id=job_id)
         if job is None:
             raise ApiProblem(404, f"there is no job {job_id}")
-        if job.state != JobState.SUCCEEDED.value:
+        if job.state != JobState.SUCCEEDED:
             raise ApiProblem(409, unfinished_detail(job))
         if job.n_detections is not None and job.n_detections > max_detections:
             raise too_large_to_view(job.id, job.n_detections, max_detections)
@@ -156,9 +156,9 @@ def too_large_to_view(job_id: uuid.UUID, n_detections: int, limit: int) -> ApiPr
 
 def unfinished_detail(job: Job) -> str:
     """Why a job has no result (yet), for a 409."""
-    if job.state == JobState.FAILED.value:
+    if job.state == JobState.FAILED:
         return f"job {job.id} failed, so it has no result: {job.error}"
-    if job.state == JobState.CANCELLED.value:
+    if job.state == JobState.CANCELLED:
         return f"job {job.id} was cancelled, so it has no result"
     return (
         f"job {job.id} is {job.state} ({job.progress:.0%} done); ask again later, "

@@ -91,6 +91,20 @@ class JobState(enum.StrEnum):
         return self in (JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED)
 
 
+class JobStateType(TypeDecorator[JobState]):
+    """A job's state: stored as its text (a plain VARCHAR, so no migration and any SQL reads
+    it), read back as a `JobState`; text that is no state is refused before it is written."""
+
+    impl = String(20)
+    cache_ok = True
+
+    def process_bind_param(self, value: JobState | str | None, dialect: Dialect) -> str | None:
+        return None if value is None else JobState(value).value
+
+    def process_result_value(self, value: str | None, dialect: Dialect) -> JobState | None:
+        return None if value is None else JobState(value)
+
+
 class Deployment(Base):
     """A stretch of road with its sensors; batches and jobs belong to one."""
 
@@ -171,7 +185,7 @@ class Job(Base):
     selection: Mapped[dict[str, Any]] = mapped_column(JSON)
     associator: Mapped[str] = mapped_column(String(100))
     params: Mapped[dict[str, Any]] = mapped_column(JSON)
-    state: Mapped[str] = mapped_column(String(20), default=JobState.QUEUED.value)
+    state: Mapped[JobState] = mapped_column(JobStateType(), default=JobState.QUEUED)
     progress: Mapped[float] = mapped_column(Float, default=0.0)
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     max_attempts: Mapped[int] = mapped_column(Integer)

@@ -274,7 +274,7 @@ def load_detection_labels(
 def count_jobs_by_state(session: Session) -> dict[str, int]:
     """Number of jobs in each state (every state present, zero included)."""
     counts = dict(session.execute(select(Job.state, func.count()).group_by(Job.state)).all())
-    return {state.value: int(counts.get(state.value, 0)) for state in JobState}
+    return {state.value: int(counts.get(state, 0)) for state in JobState}
 
 
 def job_duration_histogram(

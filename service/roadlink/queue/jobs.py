@@ -166,7 +166,7 @@ def enqueue_job(
         selection=selection,
         associator=associator,
         params=params,
-        state=JobState.QUEUED.value,
+        state=JobState.QUEUED,
         max_attempts=max_attempts,
     )
     if _is_postgres(session):
@@ -181,7 +181,7 @@ def enqueue_job(
 def has_runnable_job(session: Session, *, now: datetime | None = None) -> bool:
     """Whether a queued job is due: a read, so idle workers polling SQLite take no write lock."""
     now = _clock(session, now)
-    query = select(Job.id).where(Job.state == JobState.QUEUED.value, Job.run_after <= now).limit(1)
+    query = select(Job.id).where(Job.state == JobState.QUEUED, Job.run_after <= now).limit(1)
     return session.execute(query).first() is not None
 
 
@@ -200,16 +200,16 @@ def claim_next_job(
     now = _clock(session, now)
     candidate = (
         select(Job.id)
-        .where(Job.state == JobState.QUEUED.value, Job.run_after <= now)
+        .where(Job.state == JobState.QUEUED, Job.run_after <= now)
         .order_by(Job.run_after, Job.created_at)
         .limit(1)
         .with_for_update(skip_locked=True)
     )
     statement = (
         update(Job)
-        .where(Job.id == candidate.scalar_subquery(), Job.state == JobState.QUEUED.value)
+        .where(Job.id == candidate.scalar_subquery(), Job.state == JobState.QUEUED)
         .values(
-            state=JobState.RUNNING.value,
+            state=JobState.RUNNING,
             lease_owner=worker_id,
             lease_expires_at=now + timedelta(seconds=lease_seconds),
             attempts=Job.attempts + 1,
@@ -232,9 +232,7 @@ def claim_next_job(
 
 
 def _running_as(job_id: uuid.UUID, worker_id: str) -> Any:
-    return (
-        (Job.id == job_id) & (Job.state == JobState.RUNNING.value) & (Job.lease_owner == worker_id)
-    )
+    return (Job.id == job_id) & (Job.state == JobState.RUNNING) & (Job.lease_owner == worker_id)
 
 
 def heartbeat_job(
@@ -272,7 +270,7 @@ def complete_job(
         update(Job)
         .where(_running_as(job_id, worker_id))
         .values(
-            state=JobState.SUCCEEDED.value,
+            state=JobState.SUCCEEDED,
             progress=1.0,
             finished_at=now,
             duration_seconds=duration_seconds,
@@ -316,9 +314,9 @@ def fail_job(
     values: dict[str, Any] = {"lease_owner": None, "lease_expires_at": None, "error": error}
     if again:
         delay = backoff_seconds * 2 ** (job.attempts - 1)
-        values |= {"state": JobState.QUEUED.value, "run_after": now + timedelta(seconds=delay)}
+        values |= {"state": JobState.QUEUED, "run_after": now + timedelta(seconds=delay)}
     else:
-        values |= {"state": JobState.FAILED.value, "finished_at": now}
+        values |= {"state": JobState.FAILED, "finished_at": now}
     statement = (
         update(Job)
         .where(_running_as(job.id, worker_id))
@@ -339,7 +337,7 @@ def release_job(session: Session, *, job_id: uuid.UUID, worker_id: str) -> bool:
         update(Job)
         .where(_running_as(job_id, worker_id))
         .values(
-            state=JobState.QUEUED.value,
+            state=JobState.QUEUED,
             attempts=Job.attempts - 1,
             lease_owner=None,
             lease_expires_at=None,
@@ -363,9 +361,9 @@ def cancel_job(session: Session, *, job_id: uuid.UUID, now: datetime | None = No
     now = _clock(session, now)
     statement = (
         update(Job)
-        .where(Job.id == job_id, Job.state.in_([JobState.QUEUED.value, JobState.RUNNING.value]))
+        .where(Job.id == job_id, Job.state.in_([JobState.QUEUED, JobState.RUNNING]))
         .values(
-            state=JobState.CANCELLED.value,
+            state=JobState.CANCELLED,
             finished_at=now,
             lease_owner=None,
             lease_expires_at=None,
@@ -382,12 +380,12 @@ def rescue_expired_jobs(session: Session, *, now: datetime | None = None) -> tup
     """Running jobs whose lease expired (their worker died or stalled): queued again while
     attempts remain, failed with the reason otherwise. Returns (requeued, failed)."""
     now = _clock(session, now)
-    expired = (Job.state == JobState.RUNNING.value) & (Job.lease_expires_at < now)
+    expired = (Job.state == JobState.RUNNING) & (Job.lease_expires_at < now)
     failed_ids = session.scalars(
         update(Job)
         .where(expired, Job.attempts >= Job.max_attempts)
         .values(
-            state=JobState.FAILED.value,
+            state=JobState.FAILED,
             finished_at=now,
             lease_owner=None,
             lease_expires_at=None,
@@ -401,7 +399,7 @@ def rescue_expired_jobs(session: Session, *, now: datetime | None = None) -> tup
         update(Job)
         .where(expired, Job.attempts < Job.max_attempts)
         .values(
-            state=JobState.QUEUED.value,
+            state=JobState.QUEUED,
             lease_owner=None,
             lease_expires_at=None,
             error="the worker running this job stopped responding (its lease expired); retried",

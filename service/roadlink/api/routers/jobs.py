@@ -256,7 +256,7 @@ async def get_result(
             job = await run_in_threadpool(_read_job, sessions, job_id)
             if job is None:
                 raise ApiProblem(404, f"there is no job {job_id}")
-            if JobState(job.state).finished or time.monotonic() >= deadline:
+            if job.state.finished or time.monotonic() >= deadline:
                 break
             if await request.is_disconnected():
                 raise ApiProblem(408, "the client went away while waiting")
@@ -274,7 +274,7 @@ async def get_result(
     finally:
         if finished is not None and finished_jobs is not None:
             finished_jobs.unwatch(job_id, finished)
-    if job.state != JobState.SUCCEEDED.value:
+    if job.state != JobState.SUCCEEDED:
         raise ApiProblem(409, unfinished_detail(job))
     stored = await run_in_threadpool(_read_result, sessions, job_id)
     if stored is None:  # succeeded without a result cannot happen: both commit together
@@ -441,12 +441,12 @@ def cancel(job_id: uuid.UUID, session: SessionDep) -> JobRead:
     """Cancel a queued or running job (a running one stops at its next progress report and
     stores nothing). Cancelling a cancelled job is a no-op; a finished one is 409."""
     job = _require_job(session, job_id)
-    if job.state == JobState.CANCELLED.value:
+    if job.state == JobState.CANCELLED:
         return JobRead.model_validate(job)
     if not cancel_job(session, job_id=job_id):
         session.rollback()
         job = _require_job(session, job_id)
-        if job.state != JobState.CANCELLED.value:
+        if job.state != JobState.CANCELLED:
             raise ApiProblem(
                 409, f"job {job_id} has already {job.state}; there is nothing to cancel"
             )

@@ -108,7 +108,7 @@ def job_page(
         "job": job,
         "params_json": json.dumps(job.params, sort_keys=True),
         "selection": _describe_selection(job.selection),
-        "refresh": None if JobState(job.state).finished else REFRESH_SECONDS,
+        "refresh": None if job.state.finished else REFRESH_SECONDS,
         "kind": kind,
         # The links keep the token, so that switching plots works from a page link.
         "kind_links": [
@@ -116,7 +116,7 @@ def job_page(
             for k in PLOT_KINDS
         ],
     }
-    if job.state == JobState.SUCCEEDED.value:
+    if job.state == JobState.SUCCEEDED:
         cache: JobResultCache = request.app.state.job_results
         try:
             cached = job_result(session, cache, parsed, settings.max_view_detections)
