@@ -106,6 +106,17 @@ def test_no_router_imports_another_router(path: Path) -> None:
     assert not routers, f"{path.name} imports {sorted(routers)}"
 
 
+GENERIC = [PACKAGE / "association" / "associators" / "assignment" / "matching.py"]
+
+
+@pytest.mark.parametrize("path", GENERIC, ids=lambda p: p.name)
+def test_a_generic_solver_imports_nothing_of_the_domain(path: Path) -> None:
+    """The assignment solver knows edges and costs, not detections or tracks: it imports no
+    roadlink module, so it can be read, tested and reused on its own."""
+    ours = {name for name in imported(path) if name.split(".")[0] == "roadlink"}
+    assert not ours, f"{path.relative_to(PACKAGE)} imports {sorted(ours)}"
+
+
 def test_the_reader_resolves_absolute_relative_and_nested_imports() -> None:
     source = "import sqlalchemy\nfrom ..db import models\nfrom . import metrics\n"
     source += "def f():\n    from roadlink.api.errors import ApiProblem\n"

@@ -16,14 +16,13 @@ from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.association.associators.assignment import (
     AssignmentAssociator,
     AssignmentParams,
-    SegmentModel,
     Tails,
-    _best_skew,
-    arrange,
-    learn_segments,
-    match,
     within_time_scale,
 )
+from roadlink.association.associators.assignment.learning import best_skew, learn_segments
+from roadlink.association.associators.assignment.matching import match
+from roadlink.association.associators.assignment.prior import segment_prior
+from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.csvio import read_detections_csv
 from roadlink.association.detections import concatenate
 from roadlink.simulation import SlowZone, preset, simulate
@@ -128,7 +127,7 @@ def test_shuffled_and_relabelled_input_gives_the_same_grouping():
     assert ((groups < 0) == (again < 0)).all()
 
 
-def test_velocity_near_zero_at_a_sensor_does_not_break_the_track():
+def test_a_speed_near_zero_at_a_sensor_does_not_break_the_track():
     d = simulate(preset("large", velocity_model="constant"), seed=0).detections
     velocity = d.velocity.copy()
     # One target crawls past sensor 5 (a stop-and-go queue): its report there is 0.01 m/s.
@@ -238,7 +237,7 @@ def test_sparse_matching_terminates_on_a_block_that_made_lapjvsp_cycle():
     data = Path(__file__).parents[1] / "data" / "lapjvsp_cycle.npz"
     script = (
         "import numpy as np, sys\n"
-        "from roadlink.association.associators.assignment import _match_block\n"
+        "from roadlink.association.associators.assignment.matching import _match_block\n"
         "z = np.load(sys.argv[1])\n"
         "left, right = _match_block(z['left'], z['right'], z['cost'], float(z['alone']))\n"
         "print(left.size, np.unique(left).size, np.unique(right).size)\n"
@@ -302,7 +301,7 @@ def test_a_dense_queue_keeps_the_kinematic_travel_time():
     # Stop-and-go: a congestion wave sweeps the road, speeds range over 4-16 m/s, a vehicle
     # every 1.5 s, travel times of 15-60 s. Unrelated pairs vastly outnumber true ones, so the
     # highest bump of the travel-time ratio over all pairs is chance: the kinematic model must
-    # stand (the prior of SegmentModel).
+    # stand (`segment_prior`).
     # Measured 56% (44% before the segments learned their skew, 28% when the prior took chance
     # bumps for biases); the speeds, which swing by half between sensors, are what is still
     # hard here.
@@ -337,7 +336,7 @@ def test_learning_finds_which_end_of_a_segment_explains_its_travel_time():
     params = AssignmentParams()
     s = arrange(d, params)
     _, truth = np.unique(d.target, return_inverse=True)
-    prior = SegmentModel.prior(s, params.max_skip + 1, params)
+    prior = segment_prior(s, params.max_skip + 1, params)
     model = learn_segments(s, truth, params, prior)
     # Braking at 480 m: the segment 250 -> 500 m is explained by the speed at 250 m, and then
     # predicted to a few per cent (the symmetric prediction is off by 30-60 %).
@@ -355,12 +354,12 @@ def test_best_skew_finds_which_end_explains_the_travel_time():
     noise = np.exp(0.01 * rng.standard_normal(n))
     for w in (0.0, 0.2, 0.8, 1.0):
         dt = 1.3 * dx * ((1.0 - w) / v_a + w / v_b) * noise
-        assert _best_skew(dt, dx, v_a, v_b) == pytest.approx(w, abs=0.05)
+        assert best_skew(dt, dx, v_a, v_b) == pytest.approx(w, abs=0.05)
     # Where both ends' speeds explain the time alike, the kinematic prediction stands.
     same = rng.uniform(25.0, 35.0, n)
     dt = dx / same * np.exp(0.02 * rng.standard_normal(n))
-    assert _best_skew(dt, dx, same, same * np.exp(0.02 * rng.standard_normal(n))) == 0.5
-    assert _best_skew(dt[:2], dx[:2], same[:2], same[:2]) == 0.5  # too few links to say
+    assert best_skew(dt, dx, same, same * np.exp(0.02 * rng.standard_normal(n))) == 0.5
+    assert best_skew(dt[:2], dx[:2], same[:2], same[:2]) == 0.5  # too few links to say
 
 
 def in_hours(d: Detections) -> Detections:
@@ -379,10 +378,10 @@ def test_parameters_in_time_units_follow_the_callers_time_unit():
     d = simulate(preset("medium"), seed=0).detections
     params = AssignmentParams()
     # Seconds: the defaults stand.
-    assert within_time_scale(params, arrange(d, params)) == params
+    assert within_time_scale(params, arrange(d, params).typical_travel_time()) == params
     # Hours: a 0.5 h duplicate window would take every report within half an hour of another
     # for a copy; both are held to shares of a travel time between sensors (about 3 s here).
-    hours = within_time_scale(params, arrange(in_hours(d), params))
+    hours = within_time_scale(params, arrange(in_hours(d), params).typical_travel_time())
     assert 0.1 / 3600 < hours.duplicate_window < 1.0 / 3600
     assert hours.timestamp_noise < 0.1 / 3600
 

@@ -1,0 +1,54 @@
+"""The `assignment` associator: its stages in the order they run."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from roadlink.association.associators.assignment.confirmation import confirm_targets
+from roadlink.association.associators.assignment.learning import learn_segments
+from roadlink.association.associators.assignment.params import (
+    AssignmentParams,
+    within_time_scale,
+)
+from roadlink.association.associators.assignment.prior import segment_prior
+from roadlink.association.associators.assignment.refine import refine_boundaries
+from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.associators.assignment.tracks import build_tracks, duplicate_followers
+from roadlink.association.associators.base import Associator, Progress
+from roadlink.association.detections import Detections, IntArray
+
+
+class AssignmentAssociator(Associator):
+    name: ClassVar[str] = "assignment"
+    description: ClassVar[str] = (
+        "Constraint-aware tracking: links each sensor's detections to the tracks of the previous "
+        "sensors by sparse minimum-cost assignment with a kinematic cost, bridging missed "
+        "detections, then learns each road segment's travel-time behaviour and re-associates. "
+        "At most one detection per sensor per target; false alarms stay unassigned; needs no "
+        "labels and no target count."
+    )
+    Params = AssignmentParams
+    params: AssignmentParams
+
+    def group(self, detections: Detections, progress: Progress | None = None) -> IntArray:
+        s = arrange(detections, self.params)
+        params = within_time_scale(self.params, s.typical_travel_time())
+        prior = segment_prior(s, params.max_skip + 1, params)
+        leader = duplicate_followers(s, params)
+        # Every pass (a linking round or a re-pairing sweep) visits each sensor once and costs
+        # about the same: progress is the share of passes done.
+        rounds = params.em_rounds + 1
+        passes = rounds + params.refine_sweeps
+        model = prior
+        track = np.zeros(0, dtype=np.int64)
+        for r in range(rounds):
+            track = build_tracks(s, model, params, leader, progress, r / passes, 1.0 / passes)
+            if r + 1 < rounds:
+                model = learn_segments(s, track, params, prior)
+        for sweep in range(params.refine_sweeps):
+            track = refine_boundaries(s, model, params, track)
+            if progress:
+                progress((rounds + sweep + 1) / passes)
+        return confirm_targets(s, model, params, track)

@@ -1,0 +1,101 @@
+"""Which tracks are targets: false alarms are left out, tracks the batch's window cut are kept."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from roadlink.association.associators.assignment.costs import Level, link_cost
+from roadlink.association.associators.assignment.gating import Pairs
+from roadlink.association.associators.assignment.model import SegmentModel
+from roadlink.association.associators.assignment.params import (
+    LONGEST_TRAVEL_SPREADS,
+    AssignmentParams,
+)
+from roadlink.association.associators.assignment.sensors import Sensors
+from roadlink.association.associators.assignment.tracks import BoolArray
+from roadlink.association.detections import FloatArray, IntArray
+
+
+def confirm_targets(
+    s: Sensors, model: SegmentModel, params: AssignmentParams, track: IntArray
+) -> IntArray:
+    """Keep the tracks that are better explained as targets than as false alarms; number them.
+
+    A track's evidence is what its links save over leaving their detections apart: the sum of
+    (gate_cost - link cost). A few false alarms can chain up through loose, sensor-skipping
+    links; their evidence stays small, a real target's does not. A track shorter than
+    `min_track_length` is kept only when the batch's time window explains its shortness: the
+    batch cut it off at both ends (`starts_explained`, `ends_explained`), as it does a vehicle
+    that passed the first sensor in its last seconds.
+    """
+    out = np.full(track.size, -1, dtype=np.int64)
+    assigned = np.flatnonzero(track >= 0)
+    if assigned.size == 0:
+        return out
+    chain = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
+    ids = track[chain]
+    start = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    end = np.r_[start[1:], chain.size] - 1
+    sizes = np.bincount(ids)
+    # Links are judged by their evidence; a lone detection has none to judge, only its place.
+    evidence = track_evidence(s, model, params, chain, ids)
+    convincing = (evidence >= params.min_track_evidence) | (sizes == 1)
+    long_enough = sizes >= params.min_track_length
+    long_enough[ids[start]] |= starts_explained(s, model, chain[start]) & ends_explained(
+        s, model, chain[end]
+    )
+    good = convincing & long_enough
+    keep = chain[good[ids]]
+    _, out[keep] = np.unique(track[keep], return_inverse=True)
+    return out
+
+
+def track_evidence(
+    s: Sensors, model: SegmentModel, params: AssignmentParams, chain: IntArray, ids: IntArray
+) -> FloatArray:
+    """Per track index, the sum of what its links save over leaving their detections apart.
+
+    `chain` holds the tracks' detections sorted by track, then sensor, and `ids` their tracks.
+    Each link a -> b is costed as the forward pass saw it: against the track's mean relative
+    speed up to and including a."""
+    linked = np.flatnonzero(ids[1:] == ids[:-1])
+    a, b = chain[linked], chain[linked + 1]
+    new_track = np.r_[True, ids[1:] != ids[:-1]]
+    start = np.flatnonzero(new_track)
+    run = np.cumsum(new_track) - 1
+    cumulative = np.cumsum(s.relative_speed[chain])
+    offset = np.where(start > 0, cumulative[np.maximum(start - 1, 0)], 0.0)[run]
+    position = np.arange(chain.size) - start[run] + 1.0
+    prefix_mean = (cumulative - offset) / position
+    before = Level(prefix_mean[linked], position[linked])
+    after = Level(s.relative_speed[b], np.ones(b.size))
+    pairs = Pairs.between(s, model, params, a, b)
+    saving = params.gate_cost - link_cost(params, model, pairs, before, after)
+    evidence = np.bincount(ids[linked], weights=np.maximum(saving, 0.0), minlength=ids.max() + 1)
+    return np.asarray(evidence, dtype=np.float64)
+
+
+def starts_explained(s: Sensors, model: SegmentModel, first: IntArray) -> BoolArray:
+    """Whether a track starting with detection `first` needs no missed detection to explain its
+    start: it is at the first sensor, or the batch began too recently for its target to have
+    passed the previous sensor inside it."""
+    p = s.sensor[first]
+    before = np.maximum(p - 1, 0)
+    return (p == 0) | (s.time[first] - _longest_travel(s, model, first, before) < s.time.min())
+
+
+def ends_explained(s: Sensors, model: SegmentModel, last: IntArray) -> BoolArray:
+    """Whether a track ending with detection `last` needs no missed detection to explain its
+    end: it is at the last sensor, or the batch ended too soon for its target to reach the
+    next one inside it."""
+    p = s.sensor[last]
+    final = s.positions.size - 1
+    after = np.minimum(p, max(final - 1, 0))
+    return (p == final) | (s.time[last] + _longest_travel(s, model, last, after) > s.time.max())
+
+
+def _longest_travel(s: Sensors, model: SegmentModel, a: IntArray, p: IntArray) -> FloatArray:
+    """Longest plausible travel time of detection a's target over the segment p -> p + 1."""
+    gap = s.positions[np.minimum(p + 1, s.positions.size - 1)] - s.positions[p]
+    spread = LONGEST_TRAVEL_SPREADS * model.time_spread[p, 1]
+    return gap * np.exp(model.log_bias[p, 1] + spread) / s.speed[a]

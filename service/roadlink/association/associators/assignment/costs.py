@@ -1,0 +1,46 @@
+"""What a link costs: a sum of -2 log densities of its standardised residuals."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from roadlink.association.associators.assignment.gating import Pairs
+from roadlink.association.associators.assignment.model import SegmentModel
+from roadlink.association.associators.assignment.params import AssignmentParams
+from roadlink.association.detections import FloatArray
+
+
+@dataclass
+class Level:
+    """Mean relative speed of some track pieces, and how many detections each mean is over."""
+
+    mean: FloatArray
+    count: FloatArray
+
+
+def link_cost(
+    params: AssignmentParams, model: SegmentModel, pairs: Pairs, before: Level, after: Level
+) -> FloatArray:
+    """Cost of every candidate link a -> b: a sum of -2 log densities of standardised residuals
+    (squared in the core, flatter in the learned heavy tails: `model.Tails`).
+
+    `before` is the mean relative speed (and its number of detections) of the track ending in a,
+    `after` that of the track starting with b (b alone, when linking sensor by sensor)."""
+    r_speed = pairs.ratio / pairs.speed_spread
+    # A driver keeps a preferred speed relative to the traffic around: compare the speeds,
+    # relative to their sensors' typical speed, of the two track pieces the link would join.
+    # Speed fluctuations are correlated over several sensors, so a mean over many detections is
+    # not as sure as 1/n would say: the counts are capped.
+    memory = params.preferred_speed_memory
+    level_spread = model.preferred_speed_spread * np.sqrt(
+        1.0 / np.minimum(before.count, memory) + 1.0 / np.minimum(after.count, memory)
+    )
+    r_level = (after.mean - before.mean) / level_spread
+    return (
+        model.time_tails.cost(pairs.r_time)
+        + params.velocity_change_weight * model.speed_tails.cost(r_speed)
+        + params.preferred_speed_weight * model.level_tails.cost(r_level)
+        + params.miss_cost * (pairs.span - 1)
+    )

@@ -1,0 +1,185 @@
+"""Candidate links and what their cost needs: the pairs a gate in time lets through."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+import numpy.typing as npt
+
+from roadlink.association.associators.assignment.model import SegmentModel
+from roadlink.association.associators.assignment.params import FASTEST_SHARE, AssignmentParams
+from roadlink.association.associators.assignment.sensors import Sensors, travel_time
+from roadlink.association.detections import FloatArray, IntArray
+
+
+@dataclass
+class Pairs:
+    """Candidate links a -> b with what their cost needs: the standardised travel-time error, the
+    unexplained log speed change, the segment's speed spread, and the number of sensors spanned.
+    """
+
+    a: IntArray
+    b: IntArray
+    r_time: FloatArray
+    ratio: FloatArray
+    speed_spread: FloatArray
+    span: IntArray
+
+    def take(self, keep: npt.NDArray[np.bool_]) -> Pairs:
+        return Pairs(*(getattr(self, field.name)[keep] for field in fields(Pairs)))
+
+    @classmethod
+    def concatenate(cls, parts: list[Pairs]) -> Pairs:
+        return cls(
+            *(np.concatenate([getattr(p, field.name) for p in parts]) for field in fields(cls))
+        )
+
+    @classmethod
+    def none(cls) -> Pairs:
+        empty = np.zeros(0, dtype=np.int64)
+        nothing = np.zeros(0)
+        return cls(empty, empty, nothing, nothing, nothing, empty)
+
+    @classmethod
+    def between(
+        cls, s: Sensors, model: SegmentModel, params: AssignmentParams, a: IntArray, b: IntArray
+    ) -> Pairs:
+        """The given links, whatever sensors they join."""
+        p = s.sensor[a]
+        span = s.sensor[b] - p
+        length = np.exp(model.log_bias[p, span]) * (s.positions[s.sensor[b]] - s.positions[p])
+        r_time, ratio = time_residual(
+            params,
+            travel_time(length, s.speed[a], s.speed[b], model.skew[p, span]),
+            s.time[b] - s.time[a],
+            s.log_speed[b] - s.log_speed[a] - model.log_speed_ratio[p, span],
+            model.time_spread[p, span],
+        )
+        return cls(a, b, r_time, ratio, model.speed_spread[p, span], span)
+
+
+def time_residual(
+    params: AssignmentParams,
+    predicted: FloatArray,
+    travel: FloatArray,
+    ratio: FloatArray,
+    time_spread: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Standardised error of a travel time against the segment's prediction from both ends'
+    speeds (`predicted`, see SegmentModel). The unexplained speed change `ratio` widens the
+    spread: where between the sensors the speed changed is unknown, so the travel time is too."""
+    ambiguity = params.velocity_change_ambiguity * ratio
+    relative = np.sqrt(time_spread * time_spread + ambiguity * ambiguity)
+    absolute = relative * predicted
+    spread = np.sqrt(absolute * absolute + 2.0 * params.timestamp_noise**2)
+    return (travel - predicted) / spread, ratio
+
+
+@dataclass
+class Departures:
+    """What the links from detections a towards sensor q need of a, worked out once per a.
+
+    `sensors.travel_time` is split in two here: each pair's prediction is from_a + to_b / v_b,
+    the part a's own speed explains and the part b's speed will."""
+
+    a: IntArray
+    span: IntArray
+    from_a: FloatArray
+    to_b: FloatArray
+    centre: FloatArray  # the log speed expected at q
+    time_spread: FloatArray
+    speed_spread: FloatArray
+
+    @classmethod
+    def towards(cls, s: Sensors, model: SegmentModel, a: IntArray, q: int) -> Departures:
+        p = s.sensor[a]
+        span = q - p
+        length = np.exp(model.log_bias[p, span]) * (s.positions[q] - s.positions[p])
+        w = model.skew[p, span]
+        return cls(
+            a,
+            span,
+            length * (1.0 - w) / s.speed[a],
+            length * w,
+            s.log_speed[a] + model.log_speed_ratio[p, span],
+            model.time_spread[p, span],
+            model.speed_spread[p, span],
+        )
+
+
+def gated_pairs(
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    a: IntArray,
+    q: int,
+    gate: float,
+) -> Pairs:
+    """Candidate links from detections a to sensor q whose travel time alone is within the gate.
+
+    The time window first allows any speed seen at q (sorted times, `searchsorted`), so the work
+    is proportional to the detections near each one, never to all pairs; then, with b's speed
+    known, pairs whose travel time alone costs more than the gate are dropped."""
+    lo_index, hi_index = s.start[q], s.start[q + 1]
+    times = s.sorted_time[lo_index:hi_index]
+    if times.size == 0 or a.size == 0:
+        return Pairs.none()
+    inverse_q = s.sorted_inverse_speed[lo_index:hi_index]
+    log_q = s.sorted_log_speed[lo_index:hi_index]
+    d = Departures.towards(s, model, a, q)
+    lo, hi = _arrival_window(s, model, params, d, q, gate)
+    first = np.searchsorted(times, lo, side="left")
+    count = np.maximum(np.searchsorted(times, hi, side="right") - first, 0)
+    total = int(count.sum())
+    local = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(total)
+
+    def each(values: np.ndarray) -> np.ndarray:
+        return np.repeat(values, count)
+
+    r_time, ratio = time_residual(
+        params,
+        each(d.from_a) + each(d.to_b) * inverse_q[local],
+        times[local] - each(s.time[a]),
+        log_q[local] - each(d.centre),
+        each(d.time_spread),
+    )
+    pair_span = each(d.span)
+    keep = model.time_tails.cost(r_time) + params.miss_cost * (pair_span - 1) < gate
+    local = local[keep]
+    return Pairs(
+        each(a)[keep],
+        s.order[lo_index + local],
+        r_time[keep],
+        ratio[keep],
+        each(d.speed_spread)[keep],
+        pair_span[keep],
+    )
+
+
+def _arrival_window(
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    d: Departures,
+    q: int,
+    gate: float,
+) -> tuple[FloatArray, FloatArray]:
+    """Earliest and latest time at sensor q of a link from each of d's detections within the
+    gate: at any speed seen at q, the gate's number of spreads, the widest ambiguity."""
+    inverse_q = s.sorted_inverse_speed[s.start[q] : s.start[q + 1]]
+    reach = model.time_tails.reach(gate)
+    fastest, slowest = float(inverse_q.min()), float(inverse_q.max())
+    worst = np.maximum(np.abs(-np.log(fastest) - d.centre), np.abs(-np.log(slowest) - d.centre))
+    relative = np.sqrt(d.time_spread**2 + (params.velocity_change_ambiguity * worst) ** 2)
+    slack = reach * params.timestamp_noise * np.sqrt(2.0)
+    t_a = s.time[d.a]
+    lo = t_a + (d.from_a + d.to_b * fastest) * np.exp(-reach * relative) - slack
+    # However heavy the tails, no target covers the gap much faster than the fastest speed
+    # either sensor measured: such a link is two targets' detections, never one target's.
+    p = s.sensor[d.a]
+    gap = s.positions[q] - s.positions[p]
+    quickest = gap / (FASTEST_SHARE * np.maximum(s.top_speed[p], s.top_speed[q]))
+    lo = np.maximum(lo, t_a + quickest - slack)
+    hi = t_a + (d.from_a + d.to_b * slowest) * (1.0 + reach * relative) + slack
+    return lo, hi

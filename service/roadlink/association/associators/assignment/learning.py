@@ -1,0 +1,215 @@
+"""Learning each segment's behaviour from the confident tracks' links (the EM's M step).
+
+Centres are medians and spreads 1.4826 x MAD (robust to the odd wrong link); each segment's
+spreads are shrunk towards those pooled over all segments, and its centres towards the prior's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from roadlink.association.associators.assignment.gating import Pairs
+from roadlink.association.associators.assignment.model import SegmentModel, Tails
+from roadlink.association.associators.assignment.params import (
+    CONFIDENT_TRACK_LENGTH,
+    MIN_RELATIVE_SPREAD,
+    SKEW_MIN_LINKS,
+    SKEW_SAMPLE,
+    SKEW_SIGNIFICANCE,
+    SKEW_STEPS,
+    TAIL_SAMPLE,
+    AssignmentParams,
+)
+from roadlink.association.associators.assignment.robust import centre_and_spread, median
+from roadlink.association.associators.assignment.sensors import (
+    KINEMATIC_SKEW,
+    Sensors,
+    travel_time,
+)
+from roadlink.association.detections import FloatArray, IntArray
+
+SKEW_GRID = np.linspace(0.0, 1.0, SKEW_STEPS + 1)
+
+Links = tuple[IntArray, IntArray]
+
+
+def learn_segments(
+    s: Sensors, track: IntArray, params: AssignmentParams, prior: SegmentModel
+) -> SegmentModel:
+    """Fit every segment's model, span by span, from the links of the confident tracks; then the
+    spread of a track's speed about its own pace, and the tails of the residuals."""
+    model = prior.copy()
+    confident = confident_detections(track)
+    # Detections of a track in road order: sort by (track, sensor).
+    chain = confident[np.lexsort((s.sensor[confident], track[confident]))]
+    links: list[Links] = []
+    for span in range(1, model.max_span + 1):
+        a, b = span_links(s, track, chain, span)
+        if a.size < params.min_segment_samples:
+            continue  # keep the prior for this span
+        links.append((a, b))
+        learn_span(s, params, model, span, a, b)
+    deviation = pace_deviations(s, track, confident)
+    if deviation.size:
+        model.preferred_speed_spread = centre_and_spread(deviation)[1]
+    model.preferred_speed_spread = max(model.preferred_speed_spread, MIN_RELATIVE_SPREAD)
+    np.maximum(model.time_spread, MIN_RELATIVE_SPREAD, out=model.time_spread)
+    np.maximum(model.speed_spread, MIN_RELATIVE_SPREAD, out=model.speed_spread)
+    learn_tails(s, params, model, links, deviation)
+    return model
+
+
+def confident_detections(track: IntArray) -> IntArray:
+    """The detections of tracks with at least CONFIDENT_TRACK_LENGTH detections."""
+    assigned = np.flatnonzero(track >= 0)
+    sizes = np.bincount(track[assigned])
+    return assigned[sizes[track[assigned]] >= CONFIDENT_TRACK_LENGTH]
+
+
+def span_links(s: Sensors, track: IntArray, chain: IntArray, span: int) -> Links:
+    """The links a -> b of the tracks in `chain` (detections sorted by track, then sensor) that
+    span exactly `span` sensors forwards in time."""
+    if chain.size <= span:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    a, b = chain[:-span], chain[span:]
+    same = track[a] == track[b]
+    a, b = a[same], b[same]
+    within = s.sensor[b] - s.sensor[a] == span
+    a, b = a[within], b[within]
+    forwards = s.time[b] - s.time[a] > 0
+    return a[forwards], b[forwards]
+
+
+def learn_span(
+    s: Sensors, params: AssignmentParams, model: SegmentModel, span: int, a: IntArray, b: IntArray
+) -> None:
+    """Every segment's skew, bias, speed ratio and their spreads over `span` sensors, from the
+    links a -> b, into `model`. A segment's weight grows with its number of links: a segment seen
+    by ten targets must not get a spread measured on ten numbers alone."""
+    p = s.sensor[a]
+    dt = s.time[b] - s.time[a]
+    dx = s.positions[s.sensor[b]] - s.positions[p]
+    counts = np.bincount(p, minlength=s.positions.size)
+    weight = counts / (counts + params.min_segment_samples)
+    skew = np.full(s.positions.size, KINEMATIC_SKEW)
+    for k in np.flatnonzero(counts):
+        here = p == k
+        learned = best_skew(dt[here], dx[here], s.speed[a[here]], s.speed[b[here]])
+        skew[k] = KINEMATIC_SKEW + weight[k] * (learned - KINEMATIC_SKEW)
+    model.skew[:, span] = skew
+    log_bias = np.log(dt / travel_time(dx, s.speed[a], s.speed[b], skew[p]))
+    ratio = s.log_speed[b] - s.log_speed[a]
+    learn_centres_and_spreads(params, model, span, p, log_bias, ratio, counts, weight)
+
+
+def learn_centres_and_spreads(
+    params: AssignmentParams,
+    model: SegmentModel,
+    span: int,
+    p: IntArray,
+    log_bias: FloatArray,
+    ratio: FloatArray,
+    counts: IntArray,
+    weight: FloatArray,
+) -> None:
+    """Each segment's log bias and log speed ratio (of links starting at sensor p), and their
+    spreads: the spreads shrunk towards the pooled ones by `weight`, the centres towards the
+    prior's by precision (the prior is a rough guess, so a handful of links overrule it)."""
+    n_sensors = counts.size
+    seen = np.flatnonzero(counts)
+    bias_centre = np.zeros(n_sensors)
+    ratio_centre = np.zeros(n_sensors)
+    for k in seen:
+        bias_centre[k] = median(log_bias[p == k])
+        ratio_centre[k] = median(ratio[p == k])
+    # Spreads pooled over all segments, each residual taken from its own segment's median.
+    pooled_time = centre_and_spread(log_bias - bias_centre[p])[1]
+    pooled_speed = centre_and_spread(ratio - ratio_centre[p])[1]
+    for k in seen:
+        here = p == k
+        w, n_k = weight[k], counts[k]
+        own_time = centre_and_spread(log_bias[here])[1]
+        own_speed = centre_and_spread(ratio[here])[1]
+        time_spread = np.sqrt(w * own_time**2 + (1 - w) * pooled_time**2)
+        speed_spread = np.sqrt(w * own_speed**2 + (1 - w) * pooled_speed**2)
+        model.log_bias[k, span] = posterior_centre(
+            bias_centre[k], time_spread, n_k, model.log_bias[k, span], params.travel_time_spread
+        )
+        model.log_speed_ratio[k, span] = posterior_centre(
+            ratio_centre[k],
+            speed_spread,
+            n_k,
+            model.log_speed_ratio[k, span],
+            params.velocity_change_spread,
+        )
+        model.time_spread[k, span] = time_spread
+        model.speed_spread[k, span] = speed_spread
+    unseen = counts == 0
+    model.time_spread[unseen, span] = pooled_time
+    model.speed_spread[unseen, span] = pooled_speed
+
+
+def pace_deviations(s: Sensors, track: IntArray, confident: IntArray) -> FloatArray:
+    """How far each confident detection's relative speed lies from its track's mean."""
+    if not confident.size:
+        return np.zeros(0)
+    _, which = np.unique(track[confident], return_inverse=True)
+    mean = np.bincount(which, s.relative_speed[confident]) / np.bincount(which)
+    deviation: FloatArray = s.relative_speed[confident] - mean[which]
+    return deviation
+
+
+def learn_tails(
+    s: Sensors,
+    params: AssignmentParams,
+    model: SegmentModel,
+    links: list[Links],
+    deviation: FloatArray,
+) -> None:
+    """The tails of the three residuals, measured in the units the costs use. They are one shape
+    for the whole road, so an even sample of the links pins them (a million links' residuals
+    would cost memory)."""
+    if links:
+        a_all = np.concatenate([a for a, _ in links])
+        b_all = np.concatenate([b for _, b in links])
+        step = max(1, a_all.size // TAIL_SAMPLE)
+        pairs = Pairs.between(s, model, params, a_all[::step], b_all[::step])
+        model.time_tails = Tails.fit(pairs.r_time, model.time_tails)
+        model.speed_tails = Tails.fit(pairs.ratio / pairs.speed_spread, model.speed_tails)
+    if deviation.size:
+        model.level_tails = Tails.fit(deviation / model.preferred_speed_spread, model.level_tails)
+
+
+def best_skew(dt: FloatArray, dx: FloatArray, speed_a: FloatArray, speed_b: FloatArray) -> float:
+    """The share w of a segment's travel time best predicted from its far end's speed:
+    travel = bias * dx * ((1 - w) / v_a + w / v_b) with the least robust spread of log errors.
+    Where speeds change at a known place (braking for a slow zone just before its sensor), one
+    end's speed explains most of the time."""
+    if dt.size < SKEW_MIN_LINKS:
+        return KINEMATIC_SKEW
+    # An even sample of a few hundred links pins the skew as well as all of them would.
+    step = max(1, dt.size // SKEW_SAMPLE)
+    dt, dx, speed_a, speed_b = dt[::step], dx[::step], speed_a[::step], speed_b[::step]
+    pace_a = (dx / speed_a)[:, None]
+    pace_b = (dx / speed_b)[:, None]
+    errors = np.log(dt[:, None] / ((1.0 - SKEW_GRID) * pace_a + SKEW_GRID * pace_b))
+    centred = errors - np.median(errors, axis=0)
+    spread = np.median(np.abs(centred), axis=0)
+    best = int(np.argmin(spread))
+    # The symmetric prediction stands unless another share is clearly better: beyond the
+    # sampling error of a spread measured on this many links.
+    symmetric = spread[SKEW_GRID.size // 2]
+    if spread[best] > symmetric * (1.0 - SKEW_SIGNIFICANCE / np.sqrt(dt.size)):
+        return KINEMATIC_SKEW
+    return float(SKEW_GRID[best])
+
+
+def posterior_centre(
+    measured: float, spread: float, count: int, prior: float, prior_spread: float
+) -> float:
+    """Precision-weighted mean of a measured centre (from `count` values) and a prior guess."""
+    data_precision = count / max(spread, MIN_RELATIVE_SPREAD) ** 2
+    prior_precision = 1.0 / prior_spread**2
+    return (data_precision * measured + prior_precision * prior) / (
+        data_precision + prior_precision
+    )

@@ -1,0 +1,116 @@
+"""Minimum-cost one-to-one matching of a sparse bipartite graph, every node free to stay alone.
+
+A generic solver: it knows edges and their costs, nothing of detections or tracks.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse.csgraph import connected_components, min_weight_full_bipartite_matching
+
+Nodes = npt.NDArray[np.int64]
+Costs = npt.NDArray[np.float64]
+
+BATCH_EDGES = 2000  # edges per sparse assignment: small enough to stay linear, few enough calls
+COST_QUANTUM_INVERSE = 1024.0  # sparse matching's costs are whole multiples of its inverse
+DENSE_NODES = 120  # below this many nodes one dense assignment beats sparse bookkeeping
+
+
+def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, Nodes]:
+    """Minimum-cost one-to-one matching of the (left, right, cost) edges, every node free to stay
+    unmatched at cost gate / 2 (so an edge is taken only if it beats leaving both ends alone).
+
+    The gated graph falls apart into many small connected components (nodes far apart never
+    compete), which are solved independently: an isolated edge is simply taken, the others are
+    solved a batch of components at a time, which keeps every sparse assignment small
+    (LAPJVsp's shortest-path phase costs in proportion to the graph for every free row, so one
+    huge call would be quadratic).
+    """
+    keep = cost < gate
+    left, right, cost = left[keep], right[keep], cost[keep]
+    if left.size == 0:
+        return left, right
+    lu, li = np.unique(left, return_inverse=True)
+    ru, ri = np.unique(right, return_inverse=True)
+    n_l, n_r = lu.size, ru.size
+    if n_l + n_r <= DENSE_NODES:
+        ml, mr = _match_dense(li, ri, cost, gate / 2.0, n_l, n_r)
+        return lu[ml], ru[mr]
+    graph = coo_matrix((np.ones(li.size), (li, n_l + ri)), shape=(n_l + n_r, n_l + n_r))
+    n_parts, part = connected_components(graph, directed=False)
+    edge_part = part[li]
+    edges_in_part = np.bincount(edge_part, minlength=n_parts)
+    alone = edges_in_part[edge_part] == 1
+    taken_l = [li[alone]]
+    taken_r = [ri[alone]]
+    for block in _component_batches(np.flatnonzero(~alone), edge_part, edges_in_part):
+        bl, br = _match_block(li[block], ri[block], cost[block], gate / 2.0)
+        taken_l.append(bl)
+        taken_r.append(br)
+    return lu[np.concatenate(taken_l)], ru[np.concatenate(taken_r)]
+
+
+def _component_batches(shared: Nodes, edge_part: Nodes, edges_in_part: Nodes) -> list[Nodes]:
+    """The edges `shared` in batches of whole components, about BATCH_EDGES edges each."""
+    if shared.size == 0:
+        return []
+    order = shared[np.argsort(edge_part[shared], kind="stable")]
+    parts = edge_part[order]
+    boundary = np.flatnonzero(np.r_[True, parts[1:] != parts[:-1]])
+    batch_of_part = np.cumsum(edges_in_part[parts[boundary]]) // BATCH_EDGES
+    batch = np.repeat(batch_of_part, np.diff(np.r_[boundary, order.size]))
+    cuts = np.flatnonzero(np.r_[True, batch[1:] != batch[:-1], True])
+    return [order[lo:hi] for lo, hi in itertools.pairwise(cuts)]
+
+
+def _match_dense(
+    li: Nodes, ri: Nodes, cost: Costs, alone: float, n_l: int, n_r: int
+) -> tuple[Nodes, Nodes]:
+    """The same matching as `_match_block`, as one dense square assignment, for small problems
+    (a paper-sized batch): building sparse graphs and their components costs far more there.
+
+    Rows are the lefts, then one dummy per right; columns the rights, then one dummy per left. A
+    left may take a real right along an edge or its own dummy (cost `alone`); dummies pair freely
+    at no cost, which always leaves exactly as many free dummy rows as free dummy columns.
+    """
+    square = np.full((n_l + n_r, n_r + n_l), np.inf)
+    square[li, ri] = cost
+    square[np.arange(n_l), n_r + np.arange(n_l)] = alone
+    square[n_l + np.arange(n_r), np.arange(n_r)] = alone
+    square[n_l:, n_r:] = 0.0
+    row, col = linear_sum_assignment(square)
+    real = (row < n_l) & (col < n_r)
+    return row[real], col[real]
+
+
+def _match_block(left: Nodes, right: Nodes, cost: Costs, alone: float) -> tuple[Nodes, Nodes]:
+    """Exact min-cost matching of some edges, each node free to stay unmatched at cost `alone`.
+
+    Sparse LAPJVsp on the graph augmented with one dummy node per real node: left l may match its
+    own dummy (stay alone), right r may match its own dummy, and dummies match each other along
+    every real edge so a full matching always exists.
+    """
+    lu, li = np.unique(left, return_inverse=True)
+    ru, ri = np.unique(right, return_inverse=True)
+    n_l, n_r = lu.size, ru.size
+    # rows: real lefts [0, n_l), dummies of rights [n_l, n_l + n_r)
+    # cols: real rights [0, n_r), dummies of lefts [n_r, n_r + n_l)
+    rows = np.concatenate([li, np.arange(n_l), n_l + np.arange(n_r), n_l + ri])
+    cols = np.concatenate([ri, n_r + np.arange(n_l), np.arange(n_r), n_r + li])
+    # All weights shifted by +1: LAPJVsp needs non-zero weights, a full matching has a fixed
+    # number of edges, so the shift changes nothing.
+    weights = np.concatenate([cost, np.full(n_l, alone), np.full(n_r, alone), np.zeros(ri.size)])
+    # ... and rounded to whole multiples of 2^-10, so that every sum LAPJVsp forms is exact: with
+    # arbitrary floats its rounding errors can make it cycle forever (seen on a dense block of
+    # SUMO traffic; tests/data/lapjvsp_cycle.npz). The rounding changes costs by < 0.001.
+    weights = np.round(weights * COST_QUANTUM_INVERSE) / COST_QUANTUM_INVERSE
+    graph = csr_matrix((weights + 1.0, (rows, cols)), shape=(n_l + n_r, n_r + n_l))
+    graph.sum_duplicates()
+    row, col = min_weight_full_bipartite_matching(graph)
+    real = (row < n_l) & (col < n_r)
+    return lu[row[real]], ru[col[real]]

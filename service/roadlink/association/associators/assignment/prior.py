@@ -1,0 +1,196 @@
+"""What the detections say about every segment before any of them is linked (the EM's start)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from roadlink.association.associators.assignment.model import SegmentModel, Tails
+from roadlink.association.associators.assignment.params import (
+    PRIOR_AGREEMENT,
+    PRIOR_BIN,
+    PRIOR_LOG_RANGE,
+    PRIOR_PEAK_BINS,
+    PRIOR_PSEUDO_COUNT,
+    PRIOR_SAMPLE,
+    PRIOR_SIGNIFICANCE,
+    PRIOR_SMOOTHING,
+    PRIOR_TAILS,
+    PRIOR_TEST_SAMPLE,
+    AssignmentParams,
+)
+from roadlink.association.associators.assignment.robust import centre_and_spread, median
+from roadlink.association.associators.assignment.sensors import (
+    KINEMATIC_SKEW,
+    Sensors,
+    travel_time,
+)
+from roadlink.association.detections import FloatArray, IntArray
+
+BoolArray = npt.NDArray[np.bool_]
+
+PRIOR_BINS = np.arange(-PRIOR_LOG_RANGE, PRIOR_LOG_RANGE + PRIOR_BIN, PRIOR_BIN)
+PRIOR_ZERO_BIN = int(np.searchsorted(PRIOR_BINS, 0.0) - 1)
+
+
+def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> SegmentModel:
+    """What the detections say before any of them is linked.
+
+    Every segment's travel-time bias is the mode of log(observed / kinematic travel time) over
+    all pairs of its end sensors' detections within a broad window: the true pairs pile up at
+    the segment's bias, unrelated pairs spread thin (`travel_time_prior`). So a slow zone that
+    changes speeds at a sensor shows here, before the first link is made. A link over missed
+    detections (span > 1) takes the sum of its segments' typical travel times: travel times add
+    up, while between distant sensors there are many more unrelated pairs per true one, and the
+    highest bump of their mode is mostly chance. The speed ratio is that of the sensors' median
+    speeds; the skew is the kinematic one, until learned.
+    """
+    n_sensors = s.positions.size
+    shape = (n_sensors, max_span + 1)
+    span_axis = np.arange(max_span + 1, dtype=np.float64)
+    log_bias = np.zeros(shape)
+    log_ratio = np.zeros(shape)
+    medians = s.median_speed
+    for p in range(n_sensors - 1):
+        # A few hundred detections, evenly spread in time, are plenty to find a mode.
+        sample = s.members(p)[:: max(1, s.members(p).size // PRIOR_SAMPLE)]
+        log_bias[p, 1] = travel_time_prior(s, sample, p + 1)
+
+    # A typical target's travel time over every segment, and its kinematic prediction.
+    def kinematic(p: int, q: int) -> float:
+        return float(travel_time(float(s.positions[q] - s.positions[p]), medians[p], medians[q]))
+
+    typical = [np.exp(log_bias[p, 1]) * kinematic(p, p + 1) for p in range(n_sensors - 1)]
+    for p in range(n_sensors):
+        for span in range(1, min(max_span, n_sensors - 1 - p) + 1):
+            q = p + span
+            log_ratio[p, span] = np.log(medians[q] / medians[p])
+            if span > 1:
+                log_bias[p, span] = np.log(sum(typical[p:q]) / kinematic(p, q))
+    return SegmentModel(
+        log_bias,
+        np.full(shape, KINEMATIC_SKEW),
+        np.full(shape, params.travel_time_spread),
+        log_ratio,
+        np.broadcast_to(
+            params.velocity_change_spread * np.sqrt(np.maximum(span_axis, 1.0)), shape
+        ).copy(),
+        params.velocity_change_spread,
+        Tails(*PRIOR_TAILS),
+        Tails(*PRIOR_TAILS),
+        Tails(*PRIOR_TAILS),
+    )
+
+
+def travel_time_prior(s: Sensors, a: IntArray, q: int) -> float:
+    """A segment's log bias before anything is linked: the most common log(observed / kinematic
+    travel time) of the pairs from detections a to sensor q, or 0, the kinematic prediction,
+    unless the data clearly say otherwise."""
+    pairs = CandidatePairs.within_reach(s, a, q)
+    if pairs is None:
+        return 0.0
+    every = np.ones(pairs.pa.size, dtype=bool)
+    if a.size < PRIOR_TEST_SAMPLE:
+        # A handful of targets: no background to thin, no power for a test.
+        mode = pairs.excess(every)
+        return mode.centre() if mode.excess.max() > 0 else 0.0
+    # A driver often keeps its place among the speeds around it, so the pairs whose speeds,
+    # relative to their sensors' typical speeds, agree hold most true pairs and few unrelated
+    # ones; but not where every driver brakes to a speed of its own: both selections are tried.
+    change = s.relative_speed[pairs.pb] - s.relative_speed[pairs.pa]
+    spread = centre_and_spread(s.relative_speed[s.members(q)])[1]
+    agree = np.abs(change) <= PRIOR_AGREEMENT * spread
+    best, best_significance = 0.0, -np.inf
+    for keep in (agree, every):
+        mode = pairs.excess(keep)
+        significance = mode.significance()
+        if significance > best_significance:
+            best, best_significance = mode.centre(), significance
+    # The kinematic prediction stands unless another bias explains clearly more pairs: the
+    # background is rough (arrivals bunch in queues, speeds mix, platoons repeat at one
+    # headway), so a bump that is merely above it is no evidence of a bias.
+    return best if best_significance >= PRIOR_SIGNIFICANCE else 0.0
+
+
+@dataclass
+class CandidatePairs:
+    """Every pair (pa, pb) of a detection from sample a with a later detection at sensor q that
+    the segment's prior could link: up to 10x the kinematic travel time."""
+
+    s: Sensors
+    a: IntArray
+    pa: IntArray
+    pb: IntArray
+    length: float
+    rate: float  # detections per time unit at q
+    typical_speed_b: float  # the median speed at q
+
+    @classmethod
+    def within_reach(cls, s: Sensors, a: IntArray, q: int) -> CandidatePairs | None:
+        members = s.members(q)
+        if members.size == 0 or a.size == 0:
+            return None
+        times = s.time[members]
+        length = float(s.positions[q] - s.positions[s.sensor[a[0]]])
+        slowest = float(s.speed[members].min())
+        reach = travel_time(np.exp(PRIOR_LOG_RANGE) * length, s.speed[a], slowest)
+        first = np.searchsorted(times, s.time[a], side="right")
+        count = np.maximum(np.searchsorted(times, s.time[a] + reach) - first, 0)
+        if count.sum() == 0:
+            return None
+        pa = np.repeat(a, count)
+        pb = members[
+            np.repeat(first, count)
+            + np.arange(count.sum())
+            - np.repeat(np.cumsum(count) - count, count)
+        ]
+        span_of_time = float(times[-1] - times[0])
+        rate = (members.size - 1) / span_of_time if span_of_time > 0 else 0.0
+        return cls(s, a, pa, pb, length, rate, float(median(s.speed[members])))
+
+    def excess(self, keep: BoolArray) -> BiasHistogram:
+        """Histogram of log(observed / kinematic travel time) of the kept pairs less the
+        background of unrelated pairs: those fall uniformly in time at q's rate, so their
+        expected number in a bin grows as e^value (thinned as the pairs are)."""
+        s, pa, pb = self.s, self.pa[keep], self.pb[keep]
+        kinematic = travel_time(self.length, s.speed[pa], s.speed[pb])
+        values = np.log((s.time[pb] - s.time[pa]) / kinematic)
+        values = values[np.abs(values) <= PRIOR_LOG_RANGE]
+        histogram = np.histogram(values, PRIOR_BINS)[0].astype(np.float64)
+        typical = travel_time(self.length, s.speed[self.a], self.typical_speed_b)
+        background = (
+            float(keep.mean()) * self.rate * float(typical.sum()) * np.diff(np.exp(PRIOR_BINS))
+        )
+        return BiasHistogram(
+            values,
+            np.convolve(histogram - background, PRIOR_SMOOTHING, mode="same"),
+            np.convolve(histogram, np.square(PRIOR_SMOOTHING), mode="same") + PRIOR_PSEUDO_COUNT,
+        )
+
+
+@dataclass
+class BiasHistogram:
+    """Pairs' log(observed / kinematic travel time): the smoothed count in each of PRIOR_BINS
+    less its background (`excess`), and that count's variance."""
+
+    values: FloatArray
+    excess: FloatArray
+    variance: FloatArray
+
+    def significance(self) -> float:
+        """How many standard deviations the highest excess stands above the kinematic
+        prediction's own (bias 0)."""
+        best = int(np.argmax(self.excess))
+        if self.excess[best] <= 0:
+            return -np.inf
+        lead = self.excess[best] - self.excess[PRIOR_ZERO_BIN]
+        return float(lead / np.sqrt(self.variance[best] + self.variance[PRIOR_ZERO_BIN]))
+
+    def centre(self) -> float:
+        """The log bias at the highest excess: the median of the values near it."""
+        best = int(np.argmax(self.excess))
+        peak = 0.5 * (PRIOR_BINS[best] + PRIOR_BINS[best + 1])
+        near = self.values[np.abs(self.values - peak) <= PRIOR_PEAK_BINS * PRIOR_BIN]
+        return float(median(near)) if near.size else float(peak)

@@ -1,0 +1,88 @@
+"""The detections arranged by sensor, and the kinematic travel time every stage predicts from."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from roadlink.association.associators.assignment.params import AssignmentParams
+from roadlink.association.associators.assignment.robust import median
+from roadlink.association.detections import Detections, FloatArray, IntArray
+
+# The share of a travel time predicted from the far end's speed, before a segment learns its own:
+# both ends' speeds weigh alike.
+KINEMATIC_SKEW = 0.5
+
+
+def travel_time(
+    length: FloatArray | float,
+    speed_a: FloatArray | float,
+    speed_b: FloatArray | float,
+    skew: FloatArray | float = KINEMATIC_SKEW,
+) -> FloatArray:
+    """Travel time over `length` from a detection at speed_a to one at speed_b: a share
+    `1 - skew` of the way at the first speed, `skew` at the second (the kinematic prediction
+    at KINEMATIC_SKEW). Arrays in, arrays out; numbers in, a number out."""
+    return np.multiply(length, (1.0 - skew) / speed_a + skew / speed_b)
+
+
+@dataclass
+class Sensors:
+    """Detections arranged by sensor in road order, times ascending within a sensor."""
+
+    positions: FloatArray  # distinct positions, ascending
+    order: IntArray  # detection indices sorted by (sensor, time)
+    start: IntArray  # order[start[k]:start[k+1]] are sensor k's detections
+    sensor: IntArray  # sensor index of every detection
+    time: FloatArray
+    speed: FloatArray  # floored
+    log_speed: FloatArray
+    relative_speed: FloatArray  # log speed minus the median log speed at its sensor
+    # The same, in `order` (so a sensor's values are one contiguous slice)
+    sorted_time: FloatArray
+    sorted_inverse_speed: FloatArray
+    sorted_log_speed: FloatArray
+    top_speed: FloatArray  # the fastest speed measured at each sensor
+    median_speed: FloatArray  # the median (floored) speed at each sensor
+
+    def members(self, k: int) -> IntArray:
+        return self.order[self.start[k] : self.start[k + 1]]
+
+    def typical_travel_time(self) -> float | None:
+        """The median kinematic travel time between neighbouring sensors at their median speeds
+        (None with one sensor)."""
+        if self.positions.size < 2:
+            return None
+        speeds = self.median_speed
+        return float(np.median(travel_time(np.diff(self.positions), speeds[:-1], speeds[1:])))
+
+
+def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
+    """Index the detections by sensor and time, with speeds floored (never divide by ~0)."""
+    positions, sensor = np.unique(detections.position, return_inverse=True)
+    sensor = sensor.astype(np.int64)
+    # Ties broken by speed, then input order, so a shuffled input gives the same grouping.
+    order = np.lexsort((detections.velocity, detections.timestamp, sensor)).astype(np.int64)
+    start = np.searchsorted(sensor[order], np.arange(positions.size + 1)).astype(np.int64)
+    floor = params.velocity_floor * float(median(detections.velocity))
+    speed = np.maximum(detections.velocity, floor)
+    log_speed = np.log(speed)
+    typical = np.array(
+        [median(log_speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]
+    )
+    return Sensors(
+        positions,
+        order,
+        start,
+        sensor,
+        detections.timestamp,
+        speed,
+        log_speed,
+        log_speed - typical[sensor],
+        detections.timestamp[order],
+        1.0 / speed[order],
+        log_speed[order],
+        np.maximum.reduceat(speed[order], start[:-1]) if order.size else np.zeros(0),
+        np.array([median(speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]),
+    )

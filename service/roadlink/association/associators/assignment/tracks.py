@@ -1,0 +1,155 @@
+"""Tracks from links: the sequential pass that builds them sensor by sensor, and the bookkeeping
+between a detection's track index and its neighbours in its track."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from roadlink.association.associators.assignment.costs import Level, link_cost
+from roadlink.association.associators.assignment.gating import gated_pairs
+from roadlink.association.associators.assignment.matching import match
+from roadlink.association.associators.assignment.model import SegmentModel
+from roadlink.association.associators.assignment.params import AssignmentParams
+from roadlink.association.associators.assignment.sensors import Sensors
+from roadlink.association.associators.base import Progress
+from roadlink.association.detections import FloatArray, IntArray
+
+BoolArray = npt.NDArray[np.bool_]
+
+
+@dataclass
+class TrackLevel:
+    """Per detection: mean relative speed of its track up to and including it, and how many
+    detections that mean is over."""
+
+    mean: FloatArray
+    count: FloatArray
+
+    @classmethod
+    def start(cls, s: Sensors) -> TrackLevel:
+        return cls(s.relative_speed.copy(), np.ones(s.relative_speed.size))
+
+    def extend(self, s: Sensors, a: IntArray, b: IntArray) -> None:
+        """Detection b continues the track that ends in detection a."""
+        count = self.count[a] + 1.0
+        self.mean[b] = self.mean[a] + (s.relative_speed[b] - self.mean[a]) / count
+        self.count[b] = count
+
+
+def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
+    """For every detection, the earlier report of the same sensor it may duplicate (-1 if none):
+    within `duplicate_window` in time and `duplicate_velocity_tolerance` in speed."""
+    n = s.time.size
+    leader = np.full(n, -1, dtype=np.int64)
+    if params.duplicate_window <= 0:
+        return leader
+    tolerance = np.log1p(params.duplicate_velocity_tolerance)
+    for k in range(s.positions.size):
+        m = s.members(k)
+        for lag in range(1, m.size):
+            later, earlier = m[lag:], m[:-lag]
+            close = s.time[later] - s.time[earlier] <= params.duplicate_window
+            if not close.any():
+                break
+            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
+            fresh = alike & (leader[later] < 0)
+            leader[later[fresh]] = earlier[fresh]
+    return leader
+
+
+def build_tracks(
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    leader: IntArray,
+    progress: Progress | None,
+    done: float,
+    share: float,
+) -> IntArray:
+    """One sequential pass over the sensors: the track index of every detection (-1 = none)."""
+    n_sensors = s.positions.size
+    track = np.full(s.time.size, -1, dtype=np.int64)
+    level = TrackLevel.start(s)
+    tail = np.zeros(0, dtype=np.int64)  # last detection of every track, by track index
+    for q in range(n_sensors):
+        linked_b = np.zeros(0, dtype=np.int64)
+        if q > 0 and tail.size:
+            linked_b = _extend_tracks(s, model, params, q, track, tail, level)
+        born = _births(s.members(q), linked_b, track, leader)
+        track[born] = tail.size + np.arange(born.size)
+        tail = np.concatenate([tail, born])
+        if progress:
+            progress(done + share * (q + 1) / n_sensors)
+    return track
+
+
+def _extend_tracks(
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    q: int,
+    track: IntArray,
+    tail: IntArray,
+    level: TrackLevel,
+) -> IntArray:
+    """Link the open tracks (those whose last detection lies within `max_skip` missed sensors)
+    to sensor q's detections, one to one at least cost; the detections linked."""
+    open_tails = tail[s.sensor[tail] >= q - 1 - params.max_skip]
+    pairs = gated_pairs(s, model, params, open_tails, q, params.gate_cost)
+    if not pairs.a.size:
+        return np.zeros(0, dtype=np.int64)
+    a, b = pairs.a, pairs.b
+    before = Level(level.mean[a], level.count[a])
+    after = Level(s.relative_speed[b], np.ones(b.size))
+    cost = link_cost(params, model, pairs, before, after)
+    linked_a, linked_b = match(a, b, cost, params.gate_cost)
+    level.extend(s, linked_a, linked_b)
+    track[linked_b] = track[linked_a]
+    tail[track[linked_b]] = linked_b
+    return linked_b
+
+
+def _births(members: IntArray, linked_b: IntArray, track: IntArray, leader: IntArray) -> IntArray:
+    """The detections of a sensor that start tracks: the unmatched ones, except a report that may
+    duplicate one just linked (same sensor, moments apart, same speed): one passage reported
+    twice must not start a second track. Two such reports both unmatched both start tracks,
+    since they may be two vehicles side by side; a copy's track then dies short
+    (`min_track_length`)."""
+    unmatched = members[track[members] < 0]
+    twin_linked = np.zeros(track.size, dtype=bool)
+    copies = linked_b[leader[linked_b] >= 0]
+    twin_linked[leader[copies]] = True
+    lead = leader[unmatched]
+    twin_linked[unmatched[lead >= 0]] |= track[lead[lead >= 0]] >= 0
+    return unmatched[~twin_linked[unmatched]]
+
+
+def successors(s: Sensors, track: IntArray) -> tuple[IntArray, IntArray]:
+    """The next and previous detection of every detection in its track (-1 = none)."""
+    n = track.size
+    nxt = np.full(n, -1, dtype=np.int64)
+    prv = np.full(n, -1, dtype=np.int64)
+    assigned = np.flatnonzero(track >= 0)
+    chain = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
+    same = track[chain[1:]] == track[chain[:-1]]
+    nxt[chain[:-1][same]] = chain[1:][same]
+    prv[chain[1:][same]] = chain[:-1][same]
+    return nxt, prv
+
+
+def tracks_from_links(s: Sensors, prv: IntArray, in_track: BoolArray) -> IntArray:
+    """Track index of every detection from its predecessor links (-1 where not in a track)."""
+    track = np.full(prv.size, -1, dtype=np.int64)
+    count = 0
+    for k in range(s.positions.size):
+        members = s.members(k)
+        members = members[in_track[members]]
+        linked = prv[members] >= 0
+        track[members[linked]] = track[prv[members[linked]]]
+        first = members[~linked]
+        track[first] = count + np.arange(first.size)
+        count += first.size
+    return track
