@@ -386,6 +386,27 @@ def test_parameters_in_time_units_follow_the_callers_time_unit():
     assert hours.timestamp_noise < 0.1 / 3600
 
 
+def test_the_result_reports_the_parameters_it_ran_with_next_to_those_asked_for():
+    d = simulate(preset("medium"), seed=0).detections
+    asked = {"duplicate_window": 0.4, "timestamp_noise": 0.03}
+    seconds = associate(d, "assignment", asked).to_dict()
+    assert seconds["params"]["duplicate_window"] == 0.4
+    assert seconds["effective_params"] == seconds["params"]  # seconds: nothing held
+    hours = associate(in_hours(d), "assignment", asked).to_dict()
+    assert hours["params"] == seconds["params"]  # what was asked for, as asked
+    typical = arrange(in_hours(d), AssignmentParams()).typical_travel_time()
+    assert typical is not None and 2.0 / 3600 < typical < 5.0 / 3600  # 100 m at ~30 m/s
+    effective = hours["effective_params"]
+    assert effective["duplicate_window"] == pytest.approx(0.25 * typical, rel=1e-12)
+    assert effective["timestamp_noise"] == pytest.approx(0.02 * typical, rel=1e-12)
+    held = {"duplicate_window", "timestamp_noise"}
+    assert {k: v for k, v in effective.items() if k not in held} == {
+        k: v for k, v in hours["params"].items() if k not in held
+    }
+    # An associator that adapts nothing reports nothing.
+    assert "effective_params" not in associate(d, "kmeans++").to_dict()
+
+
 def test_a_deployment_timing_in_hours_is_grouped_as_well_as_one_timing_in_seconds():
     # Dense SUMO traffic (committed seed-0 case): 95.2% in seconds; in km, km/h and hours
     # measured 91.4% (16% when the time-unit parameters kept their seconds-sized defaults).

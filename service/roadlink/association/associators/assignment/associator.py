@@ -35,6 +35,7 @@ class AssignmentAssociator(Associator):
     def group(self, detections: Detections, progress: Progress | None = None) -> IntArray:
         s = arrange(detections, self.params)
         params = within_time_scale(self.params, s.typical_travel_time())
+        self.effective_params = params
         prior = segment_prior(s, params.max_skip + 1, params)
         leader = duplicate_followers(s, params)
         # Every pass (a linking round or a re-pairing sweep) visits each sensor once and costs
