@@ -16,9 +16,10 @@ from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.association.detections import Detections
 from roadlink.cli import app as cli
 from roadlink.queue.worker import Worker
-from tests.helpers import assert_problem
+from tests.helpers import assert_problem, detection_rows
 
 
 @pytest.fixture
@@ -145,6 +146,36 @@ def test_a_job_over_several_batches_or_a_time_window(
     assert {i.split(":")[0] for i in ids} == {first["id"], second["id"]}  # qualified: d1 twice
     windowed = client.get(f"/v1/jobs/{window.json()['id']}/result").json()
     assert windowed["n_detections"] == 3  # 12.5 is outside [0, 12)
+
+
+def test_the_result_says_which_parameters_assignment_ran_with(
+    client: TestClient, worker: Worker, deployment: dict[str, Any], paper_batch: Detections
+) -> None:
+    # The paper's batch timed in hours (positions in km, speeds in km/h): the seconds-sized
+    # duplicate_window and timestamp_noise are held to shares of a ~3 s travel time.
+    d = paper_batch
+    hours = Detections(
+        d.position / 1000,
+        d.velocity * 3.6,
+        d.timestamp / 3600,
+        d.sensor_id,
+        d.detection_id,
+        d.target,
+    )
+    body = {"detections": detection_rows(hours), "associate": {"associator": "assignment"}}
+    batch = client.post(f"/v1/deployments/{deployment['id']}/batches", json=body)
+    assert batch.status_code == 201, batch.text
+    kmeans = client.post("/v1/jobs", json={"batch_id": batch.json()["id"], "associator": "kmeans"})
+    assert kmeans.status_code == 202, kmeans.text
+    assert worker.run_once() and worker.run_once()
+
+    result = client.get(f"/v1/jobs/{batch.json()['job']['id']}/result").json()
+    asked, effective = result["params"], result["effective_params"]
+    assert (asked["duplicate_window"], asked["timestamp_noise"]) == (0.5, 0.02)
+    assert 0.1 / 3600 < effective["duplicate_window"] < 1.0 / 3600
+    assert effective["timestamp_noise"] < 0.1 / 3600
+    assert effective["max_skip"] == asked["max_skip"] == 2
+    assert "effective_params" not in client.get(f"/v1/jobs/{kmeans.json()['id']}/result").json()
 
 
 def test_job_requests_that_cannot_run(

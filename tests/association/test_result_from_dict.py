@@ -28,3 +28,10 @@ def test_the_document_round_trips_and_the_labels_score_it_again() -> None:
     assert unlabelled.metrics is None
     assert all(t is None for t in unlabelled.detections.target)
     assert np.array_equal(np.sort(unlabelled.groups), np.sort(result.groups))
+
+
+def test_the_parameters_an_associator_ran_with_round_trip() -> None:
+    detections = simulate(preset("medium"), seed=1).detections
+    document = json.loads(json.dumps(associate(detections, "assignment").to_dict()))
+    assert document["effective_params"]["max_skip"] == document["params"]["max_skip"] == 2
+    assert result_from_dict(document).to_dict()["effective_params"] == document["effective_params"]

@@ -7,6 +7,7 @@ from datetime import datetime
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+from pydantic.json_schema import SkipJsonSchema
 
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.db.models import JobState
@@ -338,7 +339,15 @@ class AssociationResultRead(BaseModel):
     )
 
     associator: str
-    params: dict[str, Any]
+    params: dict[str, Any] = Field(description="The parameters asked for, defaults filled in.")
+    # Absent, never null, from an associator that adapts nothing: so the schema has no null.
+    effective_params: dict[str, Any] | SkipJsonSchema[None] = Field(
+        default=None,
+        description="The parameters the associator ran with, from an associator that adapts "
+        "the ones asked for to the detections; absent from one that runs with them as given. "
+        "`assignment` holds its parameters in time units (duplicate_window, timestamp_noise) "
+        "to shares of a typical travel time between neighbouring sensors (docs/assignment.md).",
+    )
     n_detections: int
     n_targets: int
     targets: list[TargetRead]

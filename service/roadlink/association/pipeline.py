@@ -49,5 +49,13 @@ def associate(
             "the detections all come from one sensor position; association needs at least two"
         )
     visible = detections if cls.needs_labels else detections.without_labels()
-    groups = cls(checked).group(visible, progress)
-    return build_result(detections, groups, associator, checked.model_dump())
+    grouper = cls(checked)
+    groups = grouper.group(visible, progress)
+    effective = grouper.effective_params
+    return build_result(
+        detections,
+        groups,
+        associator,
+        checked.model_dump(),
+        None if effective is None else effective.model_dump(),
+    )

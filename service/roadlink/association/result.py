@@ -1,4 +1,5 @@
-"""The association result of design.md: targets with their detections, unassigned, metrics."""
+"""The association result: targets with their detections, unassigned, metrics (the document is
+`AssociationResultRead` in roadlink/api/schemas.py and openapi/openapi.json)."""
 
 from __future__ import annotations
 
@@ -22,6 +23,8 @@ class AssociationResult:
 
     `groups[i]` is the target index of detection i in `targets_order` terms: targets are numbered
     0..n_targets-1 in the order they pass the reference sensor; -1 is unassigned.
+    `effective_params` are the parameters the associator ran with, for an associator that adapts
+    `params` (the ones asked for) to the detections; None for one that runs with them as given.
     """
 
     associator: str
@@ -29,6 +32,7 @@ class AssociationResult:
     detections: Detections
     groups: IntArray
     metrics: Metrics | None
+    effective_params: dict[str, Any] | None = None
 
     @property
     def n_targets(self) -> int:
@@ -43,11 +47,15 @@ class AssociationResult:
         return np.split(assigned, bounds) if assigned.size else []
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON contract of design.md."""
+        """The JSON document (`effective_params` only from an associator that adapts them)."""
         rows = _detection_rows(self.detections)
+        adapted = (
+            {} if self.effective_params is None else {"effective_params": self.effective_params}
+        )
         return {
             "associator": self.associator,
             "params": self.params,
+            **adapted,
             "n_detections": len(self.detections),
             "n_targets": self.n_targets,
             "targets": [
@@ -122,17 +130,23 @@ def result_from_dict(
         target=np.array([labels.get(i) for i in ids], dtype=object).reshape(n),
     )
     group_array = np.array(groups, dtype=np.int64).reshape(n)
+    effective = document.get("effective_params")
     return AssociationResult(
         associator=str(document["associator"]),
         params=dict(document["params"]),
         detections=detections,
         groups=group_array,
         metrics=score_grouping(group_array, detections.target),
+        effective_params=None if effective is None else dict(effective),
     )
 
 
 def build_result(
-    detections: Detections, groups: IntArray, associator: str, params: dict[str, Any]
+    detections: Detections,
+    groups: IntArray,
+    associator: str,
+    params: dict[str, Any],
+    effective_params: dict[str, Any] | None = None,
 ) -> AssociationResult:
     """Renumber groups by the time each target passes the reference sensor, and score them.
 
@@ -163,6 +177,7 @@ def build_result(
         detections=detections,
         groups=renumbered,
         metrics=score_grouping(renumbered, detections.target),
+        effective_params=effective_params,
     )
 
 

@@ -35,6 +35,11 @@ class Associator(ABC):
     description: ClassVar[str]
     needs_labels: ClassVar[bool] = False
     Params: ClassVar[type[AssociatorParams]]
+    effective_params: AssociatorParams | None = None
+    """The parameters the last `group` ran with, for an associator that adapts the ones it was
+    given to the detections (`assignment` holds those in time units to their time scale): set
+    by `group`, like a fitted attribute in scikit-learn. None for an associator that runs with
+    its parameters as given."""
 
     def __init__(self, params: AssociatorParams | None = None, **values: Any) -> None:
         self.params = params if params is not None else self.Params(**values)

@@ -33,8 +33,12 @@ class AssignmentAssociator(Associator):
     params: AssignmentParams
 
     def group(self, detections: Detections, progress: Progress | None = None) -> IntArray:
+        """Arrange the detections, hold the parameters in time units to their time scale, start
+        from the prior, link and learn for `em_rounds` rounds and once more, re-pair for
+        `refine_sweeps` sweeps, and keep the tracks that are targets."""
         s = arrange(detections, self.params)
         params = within_time_scale(self.params, s.typical_travel_time())
+        self.effective_params = params
         prior = segment_prior(s, params.max_skip + 1, params)
         leader = duplicate_followers(s, params)
         # Every pass (a linking round or a re-pairing sweep) visits each sensor once and costs

@@ -1,10 +1,12 @@
 """The associator's parameters, its fixed hyper-parameters, and the scaling of those in time units.
 
 `AssignmentParams` are what a caller may set (their names and bounds are the API's contract). The
-constants below are the model's other numbers, named here once, by the stage that uses them; the
-matching solver's own constants live with it (`matching`), since they tune its speed, not the
-model. `within_time_scale` says which parameters the associator holds to the detections' own
-time scale; the associator reports the values it ran with next to the ones asked for.
+constants below are the model's other choices, named here once, by the stage that uses them.
+Numbers that are no choice live where they are used: the kinematic skew of 0.5
+(`sensors.KINEMATIC_SKEW`), the normal MAD factor (`robust`), and the matching solver's knobs,
+which tune its speed, not the model (`matching`). `within_time_scale` says which parameters the
+associator holds to the detections' own time scale; the result reports the values it ran with
+(`effective_params`) next to the ones asked for.
 """
 
 from __future__ import annotations
