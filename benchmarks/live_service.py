@@ -145,7 +145,7 @@ def create_deployment(client: httpx.Client, name: str = "bench") -> str:
 
 
 def json_batch(detections: Detections, associate: dict[str, Any] | None = None) -> dict[str, Any]:
-    """A JSON batch body (design.md's shape) holding `detections`."""
+    """A JSON batch body (BatchCreate in openapi/openapi.json) holding `detections`."""
     d = detections
     rows = [
         {

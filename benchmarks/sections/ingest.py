@@ -107,7 +107,7 @@ def json_rows(body: bytes) -> Callable[[str, str], list[tuple[Any, ...]]]:
 
 
 def csv_rows(body: bytes) -> Callable[[str, str], list[tuple[Any, ...]]]:
-    """The limit's parse of a CSV body (header: design.md's column order), as the rows."""
+    """The limit's parse of a CSV body (header: the detection CSV's column order), as the rows."""
 
     def rows(batch: str, deployment: str) -> list[tuple[Any, ...]]:
         reader = csv.reader(io.StringIO(body.decode()))

@@ -223,7 +223,7 @@ def wait_for_http_200(
 
 
 def identifier(resource: dict[str, Any], kind: str) -> str:
-    """The id of a created resource (design.md names path parameters `{kind}_id`)."""
+    """The id of a created resource (the API names path parameters `{kind}_id`)."""
     value = resource.get("id", resource.get(f"{kind}_id"))
     assert value is not None, f"no id in the created {kind}: {resource}"
     return str(value)
