@@ -21,6 +21,15 @@ from roadlink.association.associators.base import AssociatorParams
 PRIOR_LOG_RANGE = float(np.log(10.0))
 PRIOR_BIN = 0.05
 PRIOR_SAMPLE = 400
+# Unrelated pairs are counted by moving every pair's travel time by this many typical kinematic
+# travel times either way, in this many steps a side, over at most this many pairs
+# (`prior.CandidatePairs.excess`). Inner edges of 0.25-0.5 and outer ones of 0.75-1 gave the same
+# SUMO and simulator accuracies; an inner edge of 0 lets a bump count as its own background (the
+# congested slow zone of tests/association: -30 points), an outer edge of 2 blurs the waves of a
+# queue (SUMO dense and bottleneck traffic: -4 to -7 points).
+PRIOR_SIDEBANDS = (0.25, 0.75)
+PRIOR_SIDEBAND_STEPS = 8
+PRIOR_BACKGROUND_PAIRS = 100_000
 # That search also looks at the pairs alone whose relative speeds differ by at most this share of
 # the spread of relative speeds at a sensor.
 PRIOR_AGREEMENT = 0.5

@@ -10,11 +10,14 @@ import numpy.typing as npt
 from roadlink.association.associators.assignment.model import SegmentModel, Tails
 from roadlink.association.associators.assignment.params import (
     PRIOR_AGREEMENT,
+    PRIOR_BACKGROUND_PAIRS,
     PRIOR_BIN,
     PRIOR_LOG_RANGE,
     PRIOR_PEAK_BINS,
     PRIOR_PSEUDO_COUNT,
     PRIOR_SAMPLE,
+    PRIOR_SIDEBAND_STEPS,
+    PRIOR_SIDEBANDS,
     PRIOR_SIGNIFICANCE,
     PRIOR_SMOOTHING,
     PRIOR_TAILS,
@@ -93,8 +96,9 @@ def travel_time_prior(s: Sensors, a: IntArray, q: int) -> float:
         return 0.0
     every = np.ones(pairs.pa.size, dtype=bool)
     if a.size < PRIOR_TEST_SAMPLE:
-        # A handful of targets: no background to thin, no power for a test.
-        mode = pairs.excess(every)
+        # A handful of targets: no background to thin, no power for a test, and too few pairs
+        # to move (`excess`): the background is a uniform arrival rate.
+        mode = pairs.excess_over_uniform(every)
         return mode.centre() if mode.excess.max() > 0 else 0.0
     # A driver often keeps its place among the speeds around it, so the pairs whose speeds,
     # relative to their sensors' typical speeds, agree hold most true pairs and few unrelated
@@ -104,10 +108,9 @@ def travel_time_prior(s: Sensors, a: IntArray, q: int) -> float:
     agree = np.abs(change) <= PRIOR_AGREEMENT * spread
     best, best_significance = 0.0, -np.inf
     for keep in (agree, every):
-        mode = pairs.excess(keep)
-        significance = mode.significance()
+        centre, significance = pairs.bias(keep)
         if significance > best_significance:
-            best, best_significance = mode.centre(), significance
+            best, best_significance = centre, significance
     # The kinematic prediction stands unless another bias explains clearly more pairs: the
     # background is rough (arrivals bunch in queues, speeds mix, platoons repeat at one
     # headway), so a bump that is merely above it is no evidence of a bias.
@@ -116,14 +119,16 @@ def travel_time_prior(s: Sensors, a: IntArray, q: int) -> float:
 
 @dataclass
 class CandidatePairs:
-    """Every pair (pa, pb) of a detection from sample a with a later detection at sensor q that
-    the segment's prior could link: up to 10x the kinematic travel time."""
+    """Every pair (pa, pb) of a detection from sample a with a detection at sensor q that the
+    segment's prior could link (up to 10x the kinematic travel time), and the pairs up to
+    `shift` earlier, which only the background counts."""
 
     s: Sensors
     a: IntArray
     pa: IntArray
     pb: IntArray
     length: float
+    shift: float  # the largest move of a travel time in the background (time units)
     rate: float  # detections per time unit at q
     typical_speed_b: float  # the median speed at q
 
@@ -134,9 +139,12 @@ class CandidatePairs:
             return None
         times = s.time[members]
         length = float(s.positions[q] - s.positions[s.sensor[a[0]]])
+        typical_speed_b = float(median(s.speed[members]))
+        typical = median(travel_time(length, s.speed[a], typical_speed_b))
+        shift = PRIOR_SIDEBANDS[1] * float(typical)
         slowest = float(s.speed[members].min())
-        reach = travel_time(np.exp(PRIOR_LOG_RANGE) * length, s.speed[a], slowest)
-        first = np.searchsorted(times, s.time[a], side="right")
+        reach = travel_time(np.exp(PRIOR_LOG_RANGE) * length, s.speed[a], slowest) + shift
+        first = np.searchsorted(times, s.time[a] - shift, side="right")
         count = np.maximum(np.searchsorted(times, s.time[a] + reach) - first, 0)
         if count.sum() == 0:
             return None
@@ -148,26 +156,68 @@ class CandidatePairs:
         ]
         span_of_time = float(times[-1] - times[0])
         rate = (members.size - 1) / span_of_time if span_of_time > 0 else 0.0
-        return cls(s, a, pa, pb, length, rate, float(median(s.speed[members])))
+        return cls(s, a, pa, pb, length, shift, rate, typical_speed_b)
+
+    def log_ratios(self, keep: BoolArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Of the kept pairs: log(observed / kinematic travel time) of those whose travel time
+        is positive and within range, and every kept pair's travel time and kinematic one."""
+        s, pa, pb = self.s, self.pa[keep], self.pb[keep]
+        kinematic = travel_time(self.length, s.speed[pa], s.speed[pb])
+        travel = s.time[pb] - s.time[pa]
+        ahead = travel > 0
+        values = np.log(travel[ahead] / kinematic[ahead])
+        return values[np.abs(values) <= PRIOR_LOG_RANGE], travel, kinematic
+
+    def bias(self, keep: BoolArray) -> tuple[float, float]:
+        """The most common log bias of the kept pairs, and how significant it is: as little as
+        it is against either model of the unrelated pairs (`excess_over_uniform`, `excess`),
+        and nothing (-inf) when the two put the bump in different places. Neither model is
+        right everywhere: a uniform rate sees biases in the waves of a queue and the end of a
+        batch, moved pairs in a strictly periodic flow."""
+        uniform = self.excess_over_uniform(keep)
+        moved = self.excess(keep)
+        centre = moved.centre()
+        if abs(uniform.centre() - centre) > PRIOR_PEAK_BINS * PRIOR_BIN:
+            return centre, -np.inf
+        return centre, min(uniform.significance(), moved.significance())
+
+    def excess_over_uniform(self, keep: BoolArray) -> BiasHistogram:
+        """Histogram of the kept pairs' log(observed / kinematic travel time) less a
+        background of unrelated pairs falling uniformly in time at q's rate, whose expected
+        number in a bin grows as e^value (thinned as the pairs are)."""
+        values = self.log_ratios(keep)[0]
+        typical = travel_time(self.length, self.s.speed[self.a], self.typical_speed_b)
+        # Thinned as the pairs are: the share kept of those ahead in time (the others are here
+        # for `excess` alone).
+        ahead = self.s.time[self.pb] > self.s.time[self.pa]
+        thinning = float(keep[ahead].mean()) if ahead.any() else 0.0
+        background = thinning * self.rate * float(typical.sum()) * np.diff(np.exp(PRIOR_BINS))
+        return BiasHistogram.of(values, background)
 
     def excess(self, keep: BoolArray) -> BiasHistogram:
         """Histogram of log(observed / kinematic travel time) of the kept pairs less the
-        background of unrelated pairs: those fall uniformly in time at q's rate, so their
-        expected number in a bin grows as e^value (thinned as the pairs are)."""
-        s, pa, pb = self.s, self.pa[keep], self.pb[keep]
-        kinematic = travel_time(self.length, s.speed[pa], s.speed[pb])
-        values = np.log((s.time[pb] - s.time[pa]) / kinematic)
-        values = values[np.abs(values) <= PRIOR_LOG_RANGE]
-        histogram = np.histogram(values, PRIOR_BINS)[0].astype(np.float64)
-        typical = travel_time(self.length, s.speed[self.a], self.typical_speed_b)
-        background = (
-            float(keep.mean()) * self.rate * float(typical.sum()) * np.diff(np.exp(PRIOR_BINS))
+        background of unrelated pairs.
+
+        The background is the same histogram with every pair's travel time moved, in evenly
+        spaced steps, by PRIOR_SIDEBANDS typical kinematic travel times either way (never by
+        less, so that the true pairs' bump does not count as its own background). Unrelated
+        pairs keep their shape under such moves, whatever it is: the far sensor's arrivals
+        grow as a queue builds, come in waves in which the fast vehicles pass together, and
+        stop where the batch ends. A uniform arrival rate, assumed instead, took the pairs of
+        those shapes for biases (a stop-and-go segment got a travel time a tenth of the true
+        one, and not one of its links was made)."""
+        values, travel, kinematic = self.log_ratios(keep)
+        # Every pair but a stride's worth, past PRIOR_BACKGROUND_PAIRS: the background is smooth.
+        stride = max(1, travel.size // PRIOR_BACKGROUND_PAIRS)
+        band = np.linspace(*PRIOR_SIDEBANDS, PRIOR_SIDEBAND_STEPS) / PRIOR_SIDEBANDS[1]
+        moves = self.shift * np.concatenate([-band, band])
+        moved = travel[::stride][None, :] + moves[:, None]
+        scale = np.broadcast_to(kinematic[::stride], moved.shape)
+        ahead = moved > 0
+        background = np.histogram(np.log(moved[ahead] / scale[ahead]), PRIOR_BINS)[0] * (
+            stride / moves.size
         )
-        return BiasHistogram(
-            values,
-            np.convolve(histogram - background, PRIOR_SMOOTHING, mode="same"),
-            np.convolve(histogram, np.square(PRIOR_SMOOTHING), mode="same") + PRIOR_PSEUDO_COUNT,
-        )
+        return BiasHistogram.of(values, background)
 
 
 @dataclass
@@ -178,6 +228,16 @@ class BiasHistogram:
     values: FloatArray
     excess: FloatArray
     variance: FloatArray
+
+    @classmethod
+    def of(cls, values: FloatArray, background: FloatArray) -> BiasHistogram:
+        """The values' histogram over PRIOR_BINS, less the background, smoothed."""
+        histogram = np.histogram(values, PRIOR_BINS)[0].astype(np.float64)
+        return cls(
+            values,
+            np.convolve(histogram - background, PRIOR_SMOOTHING, mode="same"),
+            np.convolve(histogram, np.square(PRIOR_SMOOTHING), mode="same") + PRIOR_PSEUDO_COUNT,
+        )
 
     def significance(self) -> float:
         """How many standard deviations the highest excess stands above the kinematic
