@@ -15,6 +15,7 @@ import itertools
 from collections.abc import Callable
 
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
 from roadlink.association.detections import Detections, IntArray
@@ -42,8 +43,13 @@ def chain_groups(detections: Detections) -> IntArray:
         b = np.flatnonzero(detections.position == downstream)
         rows, cols = _links(detections, a, b, downstream - upstream)
         successor[a[rows]] = b[cols]
-    groups = np.full(len(detections), -1, dtype=np.int64)
-    has_predecessor = np.zeros(len(detections), dtype=bool)
+    return chained_groups(successor)
+
+
+def chained_groups(successor: IntArray) -> IntArray:
+    """Groups from links: each detection's successor in its track (-1 = none)."""
+    groups = np.full(successor.size, -1, dtype=np.int64)
+    has_predecessor = np.zeros(successor.size, dtype=bool)
     has_predecessor[successor[successor >= 0]] = True
     for group, start in enumerate(np.flatnonzero(~has_predecessor)):
         node = start
@@ -61,15 +67,23 @@ def _links(
     with np.errstate(divide="ignore", invalid="ignore"):
         cost = np.abs(np.log(travel * speed / gap))
     cost = np.where((travel > 0) & np.isfinite(cost), cost, np.inf)
-    # Each side may stay unmatched at the gate's cost: a square problem with dummy rows/columns.
+    return gated_assignment(cost, alone=CHAIN_GATE, gate=CHAIN_GATE)
+
+
+def gated_assignment(
+    cost: npt.NDArray[np.float64], alone: float, gate: float
+) -> tuple[IntArray, IntArray]:
+    """One-to-one links of least total cost, each row and column free to stay unmatched at cost
+    `alone` (a square problem with dummy rows and columns); links of cost `gate` or more are
+    dropped."""
     n, m = cost.shape
-    padded = np.full((n + m, m + n), CHAIN_GATE)
-    padded[:n, :m] = np.minimum(cost, 10 * CHAIN_GATE)
+    padded = np.full((n + m, m + n), alone)
+    padded[:n, :m] = np.minimum(cost, 10 * gate)
     padded[n:, m:] = 0.0
     rows, cols = linear_sum_assignment(padded)
     real = (rows < n) & (cols < m)
     rows, cols = rows[real], cols[real]
-    kept = cost[rows, cols] < CHAIN_GATE
+    kept = cost[rows, cols] < gate
     return rows[kept], cols[kept]
 
 
