@@ -47,12 +47,12 @@ class Page(HTMLParser):
         self.text.append(data)
 
 
-def _post(client: TestClient, deployment_id: str, text: str) -> str:
+def _post(client: TestClient, deployment_id: str, text: str, associator: str = "kmeans++") -> str:
     posted = client.post(
         f"/v1/deployments/{deployment_id}/batches",
         content=text,
         headers={"content-type": "text/csv"},
-        params={"associator": "kmeans++"},
+        params={"associator": associator},
     )
     assert posted.status_code == 201, posted.text
     return str(posted.json()["job"]["id"])
@@ -234,3 +234,21 @@ def test_a_page_link_never_points_at_the_host_the_client_named(
             assert made.status_code == 201, made.text
             url = made.json()["url"]
             assert url.startswith(f"{expected}{job}?token=") and "evil" not in url
+
+
+@pytest.mark.parametrize("associator", ["assignment", "kmeans++"])
+def test_the_page_shows_confidences_where_the_associator_gives_them(
+    client: TestClient, worker: Worker, deployment: dict[str, Any], paper_csv: str, associator: str
+) -> None:
+    job = _post(client, deployment["id"], paper_csv, associator)
+    assert worker.run_once()
+    page = client.get(f"/jobs/{job}")
+    assert page.status_code == 200, page.text
+    result = client.get(f"/v1/jobs/{job}/result").json()
+    if associator == "kmeans++":
+        assert ">Confidence</th>" not in page.text
+        return
+    assert ">Confidence</th>" in page.text and ">Link</th>" in page.text
+    first = result["targets"][0]
+    assert f"{100 * first['confidence']:.0f} %" in page.text
+    assert f"{100 * first['detections'][1]['link_confidence']:.0f} %" in page.text

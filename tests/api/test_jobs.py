@@ -45,7 +45,12 @@ def _post_csv(client: TestClient, deployment_id: str, text: str, **params: str) 
 
 @pytest.mark.parametrize(
     ("associator", "params"),
-    [("kmeans++", {}), ("kmeans", {"seed": 3, "n_init": 2}), ("svm-quadratic", {"folds": 3})],
+    [
+        ("kmeans++", {}),
+        ("kmeans", {"seed": 3, "n_init": 2}),
+        ("svm-quadratic", {"folds": 3}),
+        ("assignment", {"min_confidence": 0.3}),
+    ],
 )
 def test_the_service_computes_what_the_cli_computes(
     client: TestClient,
@@ -74,6 +79,12 @@ def test_the_service_computes_what_the_cli_computes(
     assert printed.exit_code == 0, printed.output
     assert served.json() == json.loads(printed.stdout)
     assert served.json()["metrics"]["accuracy"] > 0  # labelled: scored
+    # Links, and so confidences, only from the associator that builds targets from links.
+    confidences = [t.get("confidence") for t in served.json()["targets"]]
+    if associator == "assignment":
+        assert all(c is not None and 0.3**9 <= c <= 1 for c in confidences)
+    else:
+        assert confidences == [None] * len(confidences)
 
     matrix = client.get(f"/v1/jobs/{job_id}/result", params={"format": "csv"})
     assert matrix.headers["content-type"].startswith("text/csv")

@@ -58,4 +58,5 @@ def associate(
         associator,
         checked.model_dump(),
         None if effective is None else effective.model_dump(),
+        grouper.link_confidence,
     )

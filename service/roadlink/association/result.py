@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -13,7 +14,7 @@ import numpy as np
 
 from roadlink.association.backprojection import backproject_times
 from roadlink.association.csvio import spreadsheet_safe
-from roadlink.association.detections import Detections, IntArray
+from roadlink.association.detections import Detections, FloatArray, IntArray
 from roadlink.association.metrics import Metrics, score_grouping
 
 
@@ -25,6 +26,9 @@ class AssociationResult:
     0..n_targets-1 in the order they pass the reference sensor; -1 is unassigned.
     `effective_params` are the parameters the associator ran with, for an associator that adapts
     `params` (the ones asked for) to the detections; None for one that runs with them as given.
+    `link_confidence[i]` is the approximate probability that the link from the previous
+    detection of i's target to i is right (NaN for a target's first detection and for
+    unassigned ones), from an associator that builds targets from links; else None.
     """
 
     associator: str
@@ -33,6 +37,7 @@ class AssociationResult:
     groups: IntArray
     metrics: Metrics | None
     effective_params: dict[str, Any] | None = None
+    link_confidence: FloatArray | None = None
 
     @property
     def n_targets(self) -> int:
@@ -46,8 +51,17 @@ class AssociationResult:
         bounds = np.flatnonzero(np.diff(self.groups[assigned])) + 1
         return np.split(assigned, bounds) if assigned.size else []
 
+    def target_confidence(self, members: IntArray) -> float | None:
+        """The approximate probability that every link of a target is right: the product of
+        its links' confidences (1 for a target of one detection); None without confidences."""
+        if self.link_confidence is None:
+            return None
+        links = self.link_confidence[members]
+        return float(np.prod(links[np.isfinite(links)]))
+
     def to_dict(self) -> dict[str, Any]:
-        """The JSON document (`effective_params` only from an associator that adapts them)."""
+        """The JSON document (`effective_params` only from an associator that adapts them;
+        confidences only from one that builds targets from links)."""
         rows = _detection_rows(self.detections)
         adapted = (
             {} if self.effective_params is None else {"effective_params": self.effective_params}
@@ -59,17 +73,34 @@ class AssociationResult:
             "n_detections": len(self.detections),
             "n_targets": self.n_targets,
             "targets": [
-                {"target": f"T{k + 1}", "detections": [rows[i] for i in members.tolist()]}
+                self._target_dict(k, members, rows)
                 for k, members in enumerate(self.target_members())
             ],
             "unassigned": [rows[i] for i in np.flatnonzero(self.groups < 0).tolist()],
             "metrics": None if self.metrics is None else self.metrics.to_dict(),
         }
 
+    def _target_dict(self, k: int, members: IntArray, rows: list[dict[str, Any]]) -> dict[str, Any]:
+        confidence = self.target_confidence(members)
+        if confidence is None or self.link_confidence is None:
+            return {"target": f"T{k + 1}", "detections": [rows[i] for i in members.tolist()]}
+        links = self.link_confidence[members].tolist()
+        return {
+            "target": f"T{k + 1}",
+            "confidence": confidence,
+            "detections": [
+                rows[i] if math.isnan(link) else {**rows[i], "link_confidence": link}
+                for i, link in zip(members.tolist(), links, strict=True)
+            ],
+        }
+
     def to_matrix_csv(self) -> str:
         """The paper's X'': one row per target, per sensor its detection id, velocity and time.
 
         A cell holding several detections (possible with K-means) lists them separated by ';'.
+        From an associator that builds targets from links, a `confidence` column follows the
+        target's name, and each sensor has a fourth column, the confidence of the link into its
+        detection (empty for the target's first).
         """
         d = self.detections
         sensors = _sensors_in_road_order(d)
@@ -81,22 +112,28 @@ class AssociationResult:
         timestamps = [repr(t) for t in d.timestamp.tolist()]
         out = io.StringIO()
         writer = csv.writer(out, lineterminator="\n")
+        fields = ["detection_id", "velocity", "timestamp"]
+        links: list[str] = []
+        if self.link_confidence is not None:
+            fields.append("link_confidence")
+            links = ["" if math.isnan(c) else repr(c) for c in self.link_confidence.tolist()]
         writer.writerow(
             ["target"]
-            + [
-                spreadsheet_safe(f"{sid}_{field}")
-                for sid in sensors
-                for field in ("detection_id", "velocity", "timestamp")
-            ]
+            + (["confidence"] if links else [])
+            + [spreadsheet_safe(f"{sid}_{field}") for sid in sensors for field in fields]
         )
         for k, members in enumerate(self.target_members()):
-            cells: list[list[list[str]]] = [[[], [], []] for _ in sensors]
+            cells: list[list[list[str]]] = [[[] for _ in fields] for _ in sensors]
             for i in members.tolist():
                 cell = cells[sensor_of[i]]
                 cell[0].append(ids[i])
                 cell[1].append(velocities[i])
                 cell[2].append(timestamps[i])
-            writer.writerow([f"T{k + 1}"] + [";".join(v) for cell in cells for v in cell])
+                if links:
+                    cell[3].append(links[i])
+            confidence = self.target_confidence(members)
+            head = [f"T{k + 1}"] + ([] if confidence is None else [repr(confidence)])
+            writer.writerow(head + [";".join(v) for cell in cells for v in cell])
         return out.getvalue()
 
 
@@ -120,6 +157,12 @@ def result_from_dict(
     rows.extend(document["unassigned"])
     groups.extend([-1] * len(document["unassigned"]))
     n = len(rows)
+    has_links = any("confidence" in target for target in document["targets"])
+    link_confidence = (
+        np.array([r.get("link_confidence", np.nan) for r in rows], dtype=np.float64).reshape(n)
+        if has_links
+        else None
+    )
     ids = np.array([str(r["detection_id"]) for r in rows], dtype=object).reshape(n)
     detections = Detections(
         position=np.array([r["position"] for r in rows], dtype=np.float64).reshape(n),
@@ -138,6 +181,7 @@ def result_from_dict(
         groups=group_array,
         metrics=score_grouping(group_array, detections.target),
         effective_params=None if effective is None else dict(effective),
+        link_confidence=link_confidence,
     )
 
 
@@ -147,6 +191,7 @@ def build_result(
     associator: str,
     params: dict[str, Any],
     effective_params: dict[str, Any] | None = None,
+    link_confidence: FloatArray | None = None,
 ) -> AssociationResult:
     """Renumber groups by the time each target passes the reference sensor, and score them.
 
@@ -178,6 +223,7 @@ def build_result(
         groups=renumbered,
         metrics=score_grouping(renumbered, detections.target),
         effective_params=effective_params,
+        link_confidence=link_confidence,
     )
 
 

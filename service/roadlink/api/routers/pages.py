@@ -174,6 +174,7 @@ class DetectionRow:
     velocity: float
     label: str | None
     wrong: bool
+    link_confidence: float | None = None
 
 
 @dataclass
@@ -190,6 +191,7 @@ class TargetRow:
     label: str | None
     label_share: str | None
     n_wrong: int
+    confidence: float | None = None
     detections: list[DetectionRow] = field(default_factory=list)
 
 
@@ -203,6 +205,7 @@ class ResultView:
     n_detections: int
     n_wrong: int
     listed: bool
+    has_confidence: bool
 
 
 METRIC_NAMES = (
@@ -222,7 +225,10 @@ def _result_view(cached: CachedResult, kind: str) -> ResultView:
     wrong = wrongly_grouped(result.groups, d.target)
     listed = len(d) <= MAX_LISTED_DETECTIONS
 
+    links = result.link_confidence
+
     def row(i: int) -> DetectionRow:
+        link = None if links is None or np.isnan(links[i]) else float(links[i])
         return DetectionRow(
             detection_id=str(d.detection_id[i]),
             sensor_id=str(d.sensor_id[i]),
@@ -231,6 +237,7 @@ def _result_view(cached: CachedResult, kind: str) -> ResultView:
             velocity=float(d.velocity[i]),
             label=None if d.target[i] is None else str(d.target[i]),
             wrong=bool(wrong[i]),
+            link_confidence=link,
         )
 
     colours = target_colours(result.n_targets)
@@ -254,6 +261,7 @@ def _result_view(cached: CachedResult, kind: str) -> ResultView:
                 label=top[0][0] if top else None,
                 label_share=f"{top[0][1]}/{members.size}" if top else None,
                 n_wrong=int(wrong[members].sum()),
+                confidence=result.target_confidence(members),
                 detections=[row(int(i)) for i in members] if listed else [],
             )
         )
@@ -276,6 +284,7 @@ def _result_view(cached: CachedResult, kind: str) -> ResultView:
         n_detections=len(d),
         n_wrong=int(wrong.sum()),
         listed=listed,
+        has_confidence=links is not None,
     )
 
 

@@ -18,10 +18,28 @@ class TargetDetectionRead(BaseModel):
     position: float
     velocity: float
     timestamp: float
+    # Absent, never null, where there is no link: so the schema has no null.
+    link_confidence: float | SkipJsonSchema[None] = Field(
+        default=None,
+        ge=0,
+        le=1,
+        description="The approximate probability that the link from the target's previous "
+        "detection to this one is right (docs/assignment.md, Confidence). Absent on a target's "
+        "first detection, on unassigned ones, and from associators that group points rather "
+        "than link them (K-means, the SVMs).",
+    )
 
 
 class TargetRead(BaseModel):
     target: str = Field(description="T1, T2, ... in the order targets pass the reference sensor.")
+    confidence: float | SkipJsonSchema[None] = Field(
+        default=None,
+        ge=0,
+        le=1,
+        description="The approximate probability that every link of the target is right: the "
+        "product of its detections' `link_confidence` (1 for a target of one detection). Absent "
+        "from associators that group points rather than link them.",
+    )
     detections: list[TargetDetectionRead] = Field(description="Its detections, by position.")
 
 

@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict
 
-from roadlink.association.detections import Detections, IntArray
+from roadlink.association.detections import Detections, FloatArray, IntArray
 
 Progress = Callable[[float], None]
 """Called with the share of the work done, from 0 to 1."""
@@ -40,6 +40,11 @@ class Associator(ABC):
     given to the detections (`assignment` holds those in time units to their time scale): set
     by `group`, like a fitted attribute in scikit-learn. None for an associator that runs with
     its parameters as given."""
+    link_confidence: FloatArray | None = None
+    """Per detection, the approximate probability that the link into it from the previous
+    detection of its target is right (NaN for a target's first detection and for unassigned
+    ones), set by `group` for an associator that builds its targets from links (`assignment`);
+    None for one that does not (K-means and the SVMs group points, not links)."""
 
     def __init__(self, params: AssociatorParams | None = None, **values: Any) -> None:
         self.params = params if params is not None else self.Params(**values)

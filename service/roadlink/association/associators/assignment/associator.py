@@ -6,6 +6,10 @@ from typing import ClassVar
 
 import numpy as np
 
+from roadlink.association.associators.assignment.confidence import (
+    cut_weak_links,
+    link_confidence,
+)
 from roadlink.association.associators.assignment.confirmation import confirm_targets
 from roadlink.association.associators.assignment.learning import learn_segments
 from roadlink.association.associators.assignment.params import (
@@ -55,4 +59,7 @@ class AssignmentAssociator(Associator):
             track = refine_boundaries(s, model, params, track)
             if progress:
                 progress((rounds + sweep + 1) / passes)
-        return confirm_targets(s, model, params, track)
+        confidence = link_confidence(s, model, params, track)
+        target = confirm_targets(s, model, params, track)
+        target, self.link_confidence = cut_weak_links(s, target, confidence, params.min_confidence)
+        return target

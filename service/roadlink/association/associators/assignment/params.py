@@ -82,6 +82,11 @@ SKEW_SIGNIFICANCE = 2.0
 # learned bias this many spreads up.
 LONGEST_TRAVEL_SPREADS = 2.0
 
+# Confidence (`confidence`): Sinkhorn balancing stops after this many iterations, or once no
+# scaling moves by more than this.
+SINKHORN_ITERATIONS = 200
+SINKHORN_TOLERANCE = 1e-6
+
 # The parameters in time units are held to these shares of a typical travel time between
 # neighbouring sensors (`within_time_scale`).
 DUPLICATE_WINDOW_SHARE = 0.25
@@ -206,6 +211,14 @@ class AssignmentParams(AssociatorParams):
         description="Least total saving of a track's links over leaving its detections apart "
         "(the sum of gate_cost - link cost); weaker tracks are taken for chained false alarms. "
         "Higher drops more doubtful short tracks; 0 keeps every track.",
+    )
+    min_confidence: float = Field(
+        default=0.0,
+        ge=0,
+        le=1,
+        description="Links less sure than this (their confidence, the approximate probability "
+        "that the link joins one vehicle) are cut: the pieces on either side stay targets of "
+        "their own. 0 keeps every link; 0.5 keeps the links more likely right than wrong.",
     )
     duplicate_window: float = Field(
         default=0.5,

@@ -39,7 +39,7 @@ def refine_boundaries(
     u = s.relative_speed
     # A suffix only involves links after its head, which this sweep has not reached yet, so its
     # sums stay valid.
-    tail_sum, tail_count = _suffix_sums(s, nxt, in_track)
+    tail_sum, tail_count = suffix_sums(s, nxt, in_track)
     # Prefix sums (from the track's start to a detection), final once the sweep passes it.
     head_sum = np.where(in_track, u, 0.0)
     head_count = in_track.astype(np.float64)
@@ -51,21 +51,14 @@ def refine_boundaries(
         head_count[m] = 1.0 + head_count[prv[m]]
         if k == n_sensors:
             break
-        ends = _ends_at_boundary(s, model, params, nxt, prv, in_track, k)
+        ends = ends_at_boundary(s, model, params, nxt, prv, in_track, k)
         if ends is None:
             continue
         tails, pairs = ends
-        a, b = pairs.a, pairs.b
-        cost = link_cost(
-            params,
-            model,
-            pairs,
-            Level(head_sum[a] / head_count[a], head_count[a]),
-            Level(tail_sum[b] / tail_count[b], tail_count[b]),
-        )
+        cost = boundary_cost(params, model, pairs, (head_sum, head_count), (tail_sum, tail_count))
         # Splitting a track costs more here than declining a link did: a track the forward pass
         # built is evidence in itself, so re-pairing must pay for itself.
-        linked_a, linked_b = match(a, b, cost, REFINE_GATE_FACTOR * params.gate_cost)
+        linked_a, linked_b = match(pairs.a, pairs.b, cost, REFINE_GATE_FACTOR * params.gate_cost)
         crossing = tails[nxt[tails] >= 0]
         prv[nxt[crossing]] = -1
         nxt[crossing] = -1
@@ -74,7 +67,41 @@ def refine_boundaries(
     return tracks_from_links(s, prv, in_track)
 
 
-def _suffix_sums(s: Sensors, nxt: IntArray, in_track: BoolArray) -> tuple[FloatArray, FloatArray]:
+def boundary_cost(
+    params: AssignmentParams,
+    model: SegmentModel,
+    pairs: Pairs,
+    heads: tuple[FloatArray, FloatArray],
+    tails: tuple[FloatArray, FloatArray],
+) -> FloatArray:
+    """Cost of joining the prefix ending in each pair's a to the suffix starting with its b,
+    given per detection the sum and count of relative speeds of the prefix up to it (`heads`)
+    and of the suffix from it (`tails`)."""
+    a, b = pairs.a, pairs.b
+    (head_sum, head_count), (tail_sum, tail_count) = heads, tails
+    return link_cost(
+        params,
+        model,
+        pairs,
+        Level(head_sum[a] / head_count[a], head_count[a]),
+        Level(tail_sum[b] / tail_count[b], tail_count[b]),
+    )
+
+
+def prefix_sums(s: Sensors, prv: IntArray, in_track: BoolArray) -> tuple[FloatArray, FloatArray]:
+    """Sum of relative speeds, and count, from every detection's track start to it (accumulated
+    forwards, sensor by sensor)."""
+    total = np.where(in_track, s.relative_speed, 0.0)
+    count = in_track.astype(np.float64)
+    for k in range(s.positions.size):
+        m = s.members(k)
+        m = m[prv[m] >= 0]
+        total[m] += total[prv[m]]
+        count[m] += count[prv[m]]
+    return total, count
+
+
+def suffix_sums(s: Sensors, nxt: IntArray, in_track: BoolArray) -> tuple[FloatArray, FloatArray]:
     """Sum of relative speeds, and count, from every detection to its track's end (accumulated
     backwards, sensor by sensor)."""
     total = np.where(in_track, s.relative_speed, 0.0)
@@ -87,7 +114,7 @@ def _suffix_sums(s: Sensors, nxt: IntArray, in_track: BoolArray) -> tuple[FloatA
     return total, count
 
 
-def _ends_at_boundary(
+def ends_at_boundary(
     s: Sensors,
     model: SegmentModel,
     params: AssignmentParams,
