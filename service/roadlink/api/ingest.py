@@ -14,10 +14,11 @@ import numpy as np
 import orjson
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from roadlink.api.errors import ApiProblem, ProblemItem, problems_from_detections
+from roadlink.api.errors import ApiProblem, problems_from_detections
 from roadlink.api.schemas import AssociateRequest
 from roadlink.association.csvio import TooManyRows, read_csv_columns
 from roadlink.association.detections import DetectionError, Detections, Problem
+from roadlink.services.problems import ProblemItem
 
 DETECTION_FIELDS = ("position", "velocity", "timestamp", "sensor_id", "detection_id", "target")
 REQUIRED_FIELDS = ("position", "velocity", "timestamp")

@@ -9,8 +9,8 @@ from fastapi import APIRouter, Query
 from roadlink.api.deps import SessionDep
 from roadlink.api.errors import problem_responses
 from roadlink.api.schemas import DeploymentCreate, DeploymentRead
-from roadlink.api.services import require_deployment
 from roadlink.db import repository
+from roadlink.services.deployments import require_deployment
 
 router = APIRouter(prefix="/v1/deployments", tags=["deployments"])
 

@@ -9,10 +9,12 @@ from fastapi import APIRouter
 from pydantic import BaseModel, ValidationError
 
 from roadlink.api.deps import SessionDep, SettingsDep
-from roadlink.api.errors import ApiProblem, ProblemItem, problem_responses
-from roadlink.api.schemas import BatchRead, SimulationCreate
-from roadlink.api.services import read_batch, require_deployment, store_batch
+from roadlink.api.errors import ApiProblem, problem_responses
+from roadlink.api.schemas import BatchRead, SimulationCreate, batch_read
 from roadlink.association.detections import Detections
+from roadlink.services.batches import ParsedBatch, batch_job, store_batch
+from roadlink.services.deployments import require_deployment
+from roadlink.services.problems import ProblemItem
 from roadlink.simulation import preset, simulate
 
 # Algorithm 1 costs time per target and sensor; beyond this a request would hold an API thread
@@ -67,12 +69,10 @@ def create_simulation(
         session,
         settings=settings,
         deployment_id=deployment.id,
-        detections=detections,
-        source="simulation",
-        associate=body.associate,
+        batch=ParsedBatch(detections, "simulation", body.associate),
     )
     session.commit()
-    return read_batch(session, batch)
+    return batch_read(batch, batch_job(session, batch))
 
 
 def _with_declared_sensor_ids(
