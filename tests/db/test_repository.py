@@ -10,6 +10,7 @@ from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.association.detections import Detections
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory, transaction
+from roadlink.db.json_columns import BatchSelection, WindowSelection
 from roadlink.simulation import preset, simulate
 
 
@@ -34,7 +35,7 @@ def test_a_batch_comes_back_exactly_as_stored(engine: Engine) -> None:
     factory = make_session_factory(engine)
     with factory() as session:
         loaded = repository.load_detections(
-            session, deployment_id=deployment_id, selection={"batch_ids": [str(batch_id)]}
+            session, deployment_id=deployment_id, selection=BatchSelection((batch_id,))
         )
         batch = repository.get_batch(session, batch_id=batch_id)
     assert batch is not None and batch.n_detections == len(detections)
@@ -51,10 +52,10 @@ def test_a_time_window_spans_batches_and_keeps_reused_ids_apart(engine: Engine) 
     factory = make_session_factory(engine)
     with factory() as session:
         window = repository.load_detections(
-            session, deployment_id=deployment_id, selection={"start": 2.0, "end": 12.5}
+            session, deployment_id=deployment_id, selection=WindowSelection(2.0, 12.5)
         )
         count = repository.count_selected_detections(
-            session, deployment_id=deployment_id, selection={"start": 2.0, "end": 12.5}
+            session, deployment_id=deployment_id, selection=WindowSelection(2.0, 12.5)
         )
     # [2, 12.5): 4.3 and 10 from each batch.
     assert sorted(window.timestamp.tolist()) == [4.3, 4.3, 10.0, 10.0]

@@ -12,6 +12,7 @@ from sqlalchemy.orm import Session
 
 from roadlink.association.detections import Detections
 from roadlink.db import repository
+from roadlink.db.json_columns import BatchSelection
 from roadlink.db.models import Batch, Deployment, Job
 from roadlink.queue.jobs import enqueue_job
 from roadlink.services.deployments import require_deployment
@@ -90,7 +91,7 @@ def store_batch(
         job = enqueue_job(
             session,
             deployment_id=deployment_id,
-            selection={"batch_ids": [str(batch_id)]},
+            selection=BatchSelection((batch_id,)),
             associator=batch.associate.associator,
             params=params,
             max_attempts=settings.max_attempts,

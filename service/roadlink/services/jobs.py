@@ -12,6 +12,7 @@ from sqlalchemy.orm import Session
 from roadlink.association import parse_params
 from roadlink.association.associators import AssociationError
 from roadlink.db import repository
+from roadlink.db.json_columns import BatchSelection, Selection, WindowSelection
 from roadlink.db.models import Job
 from roadlink.queue.jobs import enqueue_job
 from roadlink.services.deployments import require_deployment
@@ -120,12 +121,12 @@ def create_job_once(
     return first_commit_wins(session, write, earlier)
 
 
-def resolve_selection(session: Session, asked: JobAsked) -> tuple[uuid.UUID, dict[str, Any]]:
+def resolve_selection(session: Session, asked: JobAsked) -> tuple[uuid.UUID, Selection]:
     """The deployment and the selection a job request covers, or 422 when it selects nothing a
     job can associate."""
     if asked.deployment_id is not None:
         deployment_id = require_deployment(session, asked.deployment_id).id
-        selection: dict[str, Any] = {"start": asked.start, "end": asked.end}
+        selection: Selection = WindowSelection(asked.start, asked.end)
     else:
         deployment_id, selection = _batches_of_one_deployment(session, asked)
     _check_selects_enough(session, deployment_id, selection)
@@ -134,7 +135,7 @@ def resolve_selection(session: Session, asked: JobAsked) -> tuple[uuid.UUID, dic
 
 def _batches_of_one_deployment(
     session: Session, asked: JobAsked
-) -> tuple[uuid.UUID, dict[str, Any]]:
+) -> tuple[uuid.UUID, BatchSelection]:
     batch_ids = [asked.batch_id] if asked.batch_id is not None else list(asked.batch_ids or [])
     deployments = set()
     for k, batch_id in enumerate(batch_ids):
@@ -153,12 +154,10 @@ def _batches_of_one_deployment(
             "the batches belong to different deployments; a job covers one deployment",
             errors=[ProblemItem(field="batch_ids", message="span several deployments")],
         )
-    return deployments.pop(), {"batch_ids": list(dict.fromkeys(str(b) for b in batch_ids))}
+    return deployments.pop(), BatchSelection.of(batch_ids)
 
 
-def _check_selects_enough(
-    session: Session, deployment_id: uuid.UUID, selection: dict[str, Any]
-) -> None:
+def _check_selects_enough(session: Session, deployment_id: uuid.UUID, selection: Selection) -> None:
     n, positions = repository.count_selected_detections(
         session, deployment_id=deployment_id, selection=selection
     )

@@ -12,6 +12,7 @@ from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem, problem_responses
 from roadlink.api.schemas import BatchRead, SimulationCreate, batch_read
 from roadlink.association.detections import Detections
+from roadlink.db.json_columns import Sensor
 from roadlink.services.batches import ParsedBatch, batch_job, store_batch
 from roadlink.services.deployments import require_deployment
 from roadlink.services.problems import ProblemItem
@@ -41,7 +42,7 @@ def create_simulation(
     overrides = cast(BaseModel, body.config).model_dump(exclude_none=True)
     declared = deployment.sensors
     if declared and "sensor_positions" not in overrides:
-        overrides["sensor_positions"] = [float(s["position"]) for s in declared]
+        overrides["sensor_positions"] = [s.position for s in declared]
     try:
         config = preset(body.preset, **overrides)
     except ValidationError as exc:
@@ -75,12 +76,10 @@ def create_simulation(
     return batch_read(batch, batch_job(session, batch))
 
 
-def _with_declared_sensor_ids(
-    detections: Detections, declared: list[dict[str, object]]
-) -> Detections:
+def _with_declared_sensor_ids(detections: Detections, declared: list[Sensor]) -> Detections:
     """Name each simulated detection's sensor as the deployment does, or 422 when the
     simulated sensors are not the declared ones."""
-    by_position = {float(s["position"]): str(s["sensor_id"]) for s in declared}  # type: ignore[arg-type]
+    by_position = {s.position: s.sensor_id for s in declared}
     unknown = sorted({float(p) for p in detections.sensor_positions} - by_position.keys())
     if unknown:
         raise ApiProblem(
