@@ -124,19 +124,33 @@ def problems_from_detections(
     return items
 
 
-def _validation_items(errors: Sequence[Any]) -> list[ProblemItem]:
-    items = []
-    for error in errors:
-        field: str | None
-        location = [str(part) for part in error.get("loc", ()) if part != "body"]
-        if location and location[0] in ("query", "path", "header"):
-            field = ".".join(location[1:]) or location[0]
-            pointer = None
-        else:
-            field = ".".join(location) or None
-            pointer = "/" + "/".join(location) if location else None
-        items.append(ProblemItem(field=field, pointer=pointer, message=error.get("msg", "invalid")))
-    return items
+def validation_item(
+    location: Sequence[Any], message: str, *, under: str | None = None, pointer: bool = True
+) -> ProblemItem:
+    """The one translation of a pydantic validation error (its `loc` and `msg`) into a problem
+    item: the field as a dotted path (below `under`, when the validated value sits there in the
+    request), and, for a JSON document, the JSON Pointer to it."""
+    path = [str(part) for part in location]
+    field = ".".join([under, *path] if under else path) or None
+    return ProblemItem(
+        field=field, pointer="/" + "/".join(path) if pointer else None, message=message
+    )
+
+
+# Where FastAPI found a request parameter: the first part of a validation error's location.
+PARAMETER_SOURCES = ("query", "path", "header")
+
+
+def _request_item(error: Mapping[str, Any]) -> ProblemItem:
+    """A request validation error: a parameter is named by its name (no pointer), a body field
+    by its path, the body as a whole by nothing."""
+    location = [part for part in error.get("loc", ()) if part != "body"]
+    message = error.get("msg", "invalid")
+    if location and location[0] in PARAMETER_SOURCES:
+        return validation_item(location[1:] or location[:1], message, pointer=False)
+    if location:
+        return validation_item(location, message)
+    return ProblemItem(message=message)
 
 
 def install_error_handlers(app: FastAPI) -> None:
@@ -149,7 +163,7 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
-        items = _validation_items(exc.errors())
+        items = [_request_item(error) for error in exc.errors()]
         detail = "; ".join(f"{i.field or 'body'}: {i.message}" for i in items[:5])
         return problem_response(request, 422, f"the request is invalid: {detail}", items)
 

@@ -14,7 +14,7 @@ import numpy as np
 import orjson
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from roadlink.api.errors import ApiProblem, problems_from_detections
+from roadlink.api.errors import ApiProblem, problems_from_detections, validation_item
 from roadlink.api.schemas import AssociateRequest
 from roadlink.association.csvio import TooManyRows, read_csv_columns
 from roadlink.association.detections import DetectionError, Detections, Problem
@@ -46,14 +46,7 @@ def parse_json_batch(
     try:
         envelope = _Envelope.model_validate(document)
     except ValidationError as exc:
-        shape = [
-            ProblemItem(
-                field=".".join(str(p) for p in e["loc"]) or None,
-                pointer="/" + "/".join(str(p) for p in e["loc"]),
-                message=e["msg"],
-            )
-            for e in exc.errors()[:50]
-        ]
+        shape = [validation_item(e["loc"], e["msg"]) for e in exc.errors()[:50]]
         raise ApiProblem(422, "the batch is not of the documented shape", errors=shape) from None
     rows = envelope.detections
     if len(rows) > max_detections:

@@ -4,6 +4,16 @@ one request: the first commit wins. Keys are forgotten after ROADLINK_IDEMPOTENC
 
 Batch keys live on the batch row (unique per deployment); job keys in their own table (unique
 per API key, so two clients cannot collide on "1"): `db/idempotency.py`.
+
+Why batches and jobs do not share one rule for the header, the scope and the digest: each
+difference is visible to clients, and the redesign changes no response.
+- The header: on batches it has max_length=200 only (an empty key is a key), on jobs also
+  min_length=1 (an empty key is a 422); the two descriptions differ too, in openapi.json.
+- The scope: a batch key is unique per deployment, whichever API key sends it; a job key per
+  API key. One key from two API keys replays a batch but makes two jobs.
+- The digest: a batch's covers its content type and raw bytes (the CSV or JSON text as sent),
+  a job's its parsed body (`api/idempotency.py`, `request_sha256`), so whitespace and key order
+  tell batch retries apart, not job retries.
 """
 
 from __future__ import annotations

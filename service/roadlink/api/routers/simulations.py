@@ -9,7 +9,7 @@ from fastapi import APIRouter
 from pydantic import BaseModel, ValidationError
 
 from roadlink.api.deps import SessionDep, SettingsDep
-from roadlink.api.errors import ApiProblem, problem_responses
+from roadlink.api.errors import ApiProblem, problem_responses, validation_item
 from roadlink.api.schemas import BatchRead, SimulationCreate, batch_read
 from roadlink.association.detections import Detections
 from roadlink.db.json_columns import Sensor
@@ -47,11 +47,7 @@ def create_simulation(
         config = preset(body.preset, **overrides)
     except ValidationError as exc:
         items = [
-            ProblemItem(
-                field="config." + ".".join(str(p) for p in e["loc"]) if e["loc"] else "config",
-                message=e["msg"],
-            )
-            for e in exc.errors()
+            validation_item(e["loc"], e["msg"], under="config", pointer=False) for e in exc.errors()
         ]
         raise ApiProblem(422, "the simulation settings are invalid", errors=items) from None
     expected = config.n_targets * len(config.sensor_positions) * (1 + config.false_alarm_rate)
