@@ -17,7 +17,7 @@ from roadlink.db import repository
 from roadlink.db.engine import transaction
 from roadlink.db.json_columns import BatchSelection
 from roadlink.queue import claim_next_job, complete_job, enqueue_job
-from roadlink.queue.jobs import (
+from roadlink.queue.transitions import (
     FINISHED_CHANNEL,
     NOTIFY_CHANNEL,
     local_enqueue_signal,

@@ -30,7 +30,7 @@ from roadlink.db.json_columns import BatchSelection
 from roadlink.db.migrate import upgrade_to_head
 from roadlink.db.models import Job, JobResult
 from roadlink.queue import enqueue_job
-from roadlink.queue.jobs import NOTIFY_CHANNEL
+from roadlink.queue.transitions import NOTIFY_CHANNEL
 from roadlink.queue.worker import run_worker_process
 from roadlink.settings import Settings
 from roadlink.simulation import preset, simulate

@@ -14,7 +14,7 @@ from roadlink.association.detections import Detections
 from roadlink.db import repository
 from roadlink.db.json_columns import BatchSelection
 from roadlink.db.models import Batch, Deployment, Job
-from roadlink.queue.jobs import enqueue_job
+from roadlink.queue.transitions import enqueue_job
 from roadlink.services.deployments import require_deployment
 from roadlink.services.idempotency import first_commit_wins, replayed_batch
 from roadlink.services.jobs import AssociationAsked, checked_params

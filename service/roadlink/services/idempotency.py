@@ -3,7 +3,7 @@ created and creates nothing; the same key with a different body is a 422. Concur
 one request: the first commit wins. Keys are forgotten after ROADLINK_IDEMPOTENCY_HOURS.
 
 Batch keys live on the batch row (unique per deployment); job keys in their own table (unique
-per API key, so two clients cannot collide on "1"): `db/idempotency.py`.
+per API key, so two clients cannot collide on "1"): `db/idempotency_records.py`.
 
 Why batches and jobs do not share one rule for the header, the scope and the digest: each
 difference is visible to clients, and the redesign changes no response.
@@ -12,7 +12,7 @@ difference is visible to clients, and the redesign changes no response.
 - The scope: a batch key is unique per deployment, whichever API key sends it; a job key per
   API key. One key from two API keys replays a batch but makes two jobs.
 - The digest: a batch's covers its content type and raw bytes (the CSV or JSON text as sent),
-  a job's its parsed body (`api/idempotency.py`, `request_sha256`), so whitespace and key order
+  a job's its parsed body (`request_sha256` in `api/routers/jobs.py`), so whitespace and key order
   tell batch retries apart, not job retries.
 """
 
@@ -28,7 +28,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from roadlink.db import repository
 from roadlink.db.engine import transaction
-from roadlink.db.idempotency import (
+from roadlink.db.idempotency_records import (
     Forgotten,
     find_job_idempotency_key,
     forget_idempotency_keys,

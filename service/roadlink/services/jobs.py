@@ -14,7 +14,7 @@ from roadlink.association.associators import AssociationError
 from roadlink.db import repository
 from roadlink.db.json_columns import BatchSelection, Selection, WindowSelection
 from roadlink.db.models import Job
-from roadlink.queue.jobs import enqueue_job
+from roadlink.queue.transitions import enqueue_job
 from roadlink.services.deployments import require_deployment
 from roadlink.services.idempotency import first_commit_wins, record_job_key, replayed_job
 from roadlink.services.problems import ProblemItem, ServiceProblem

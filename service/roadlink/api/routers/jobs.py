@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import time
 import uuid
 from collections.abc import AsyncIterator
@@ -10,14 +11,14 @@ from dataclasses import asdict
 from datetime import UTC, datetime
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, FastAPI, Path, Query, Request, Response
+from fastapi import APIRouter, FastAPI, Header, Path, Query, Request, Response
+from pydantic import BaseModel
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.concurrency import run_in_threadpool
 
 from roadlink.api.auth import principal_of
 from roadlink.api.deps import SessionDep, SessionFactoryDep, SettingsDep
 from roadlink.api.errors import ApiProblem, problem_responses
-from roadlink.api.idempotency import IdempotencyKeyHeader, request_sha256
 from roadlink.api.jobresults import SucceededJobDep, unfinished_detail
 from roadlink.api.pagelinks import DEFAULT_LIFETIME_SECONDS, MAX_LIFETIME_SECONDS, page_token
 from roadlink.api.schemas import (
@@ -33,7 +34,7 @@ from roadlink.association.localisation import positions_at, target_index, target
 from roadlink.db import repository
 from roadlink.db.models import ApiKey, Job, JobState
 from roadlink.plots import PlotFormat, PlotKind
-from roadlink.queue.jobs import cancel_job
+from roadlink.queue.transitions import cancel_job
 from roadlink.queue.wakeup import FinishedJobs
 from roadlink.services.jobs import create_job_once, require_job
 from roadlink.services.problems import ProblemItem
@@ -53,6 +54,24 @@ async def _listen_for_finished_jobs(app: FastAPI) -> AsyncIterator[None]:
 
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"], lifespan=_listen_for_finished_jobs)
+
+IdempotencyKeyHeader = Annotated[
+    str | None,
+    Header(
+        alias="Idempotency-Key",
+        min_length=1,
+        max_length=200,
+        description="Makes retries safe: a repeated request with the same key (from the same API "
+        "key) returns the job the first one created; the same key with a different body is an "
+        "error (422). Keys are remembered for at least 24 hours.",
+    ),
+]
+
+
+def request_sha256(body: BaseModel) -> str:
+    """A digest of the request as parsed (so whitespace or key order do not make it differ)."""
+    return hashlib.sha256(body.model_dump_json().encode()).hexdigest()
+
 
 MATRIX_CSV_EXAMPLE = (
     "target,S1_detection_id,S1_velocity,S1_timestamp,S2_detection_id,S2_velocity,S2_timestamp\n"
