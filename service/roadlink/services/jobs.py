@@ -122,8 +122,9 @@ def create_job_once(
 
 
 def resolve_selection(session: Session, asked: JobAsked) -> tuple[uuid.UUID, Selection]:
-    """The deployment and the selection a job request covers, or 422 when it selects nothing a
-    job can associate."""
+    """The deployment and the selection a job request covers: 404 for a deployment that does
+    not exist, 422 for batches that do not, span several deployments, or select nothing a job
+    can associate."""
     if asked.deployment_id is not None:
         deployment_id = require_deployment(session, asked.deployment_id).id
         selection: Selection = WindowSelection(asked.start, asked.end)
