@@ -42,6 +42,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.db import repository
 from roadlink.db.engine import make_engine, make_session_factory, transaction
+from roadlink.db.json_columns import BatchSelection
 from roadlink.db.migrate import upgrade_to_head
 from roadlink.db.models import Job, JobState
 from roadlink.queue import enqueue_job
@@ -129,7 +130,7 @@ class Queue:
                 enqueue_job(
                     session,
                     deployment_id=self.deployment_id,
-                    selection={"batch_ids": [str(self.batch_id)]},
+                    selection=BatchSelection((self.batch_id,)),
                     associator=DEFAULT_ASSOCIATOR,
                     params={},
                     max_attempts=1,

@@ -21,7 +21,7 @@ ALLOWED = {
     "configuration": {"settings"},
     "db": {"association", "db", "settings"},
     "queue": {"association", "db", "queue", "settings"},
-    "services": {"association", "simulation", "db", "queue", "settings", "services"},
+    "services": {"association", "db", "queue", "settings", "services"},
     "api": {
         "association",
         "simulation",
@@ -91,13 +91,26 @@ def test_the_core_imports_no_web_database_or_command_line_library(part: str) -> 
         assert not libraries, f"{path.relative_to(PACKAGE)} imports {sorted(libraries)}"
 
 
+WEB_LIBRARIES = {"fastapi", "starlette", "uvicorn"}
+
+
+def test_the_services_import_no_web_library() -> None:
+    """What a request does is told apart from how it came: the services raise ServiceProblem,
+    and only the API knows HTTP."""
+    paths = [p for name, p in modules() if name == "services"]
+    assert paths, "no services package"
+    for path in paths:
+        libraries = {name.split(".")[0] for name in imported(path)} & WEB_LIBRARIES
+        assert not libraries, f"{path.relative_to(PACKAGE)} imports {sorted(libraries)}"
+
+
 ROUTERS = PACKAGE / "api" / "routers"
 
 
 @pytest.mark.parametrize("path", sorted(ROUTERS.glob("*.py")), ids=lambda p: p.name)
 def test_no_router_imports_another_router(path: Path) -> None:
-    """What several routers need lives below them (roadlink/api/services.py and the like), so
-    that each router reads on its own."""
+    """What several routers need lives below them (roadlink/services/ and the like), so that
+    each router reads on its own."""
     routers = {
         name
         for name in imported(path)

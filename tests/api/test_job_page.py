@@ -70,6 +70,7 @@ def anonymous(client: TestClient) -> TestClient:
     return TestClient(client.app)
 
 
+@pytest.mark.slow
 def test_a_page_link_opens_a_finished_jobs_page_without_a_key(
     client: TestClient,
     anonymous: TestClient,

@@ -11,9 +11,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from roadlink.api.routers import jobs as jobs_router
 from roadlink.association.associators import ASSOCIATORS
 from roadlink.queue.worker import Worker
+from roadlink.services import waiting
 from tests.queue.associators_for_tests import SleepingAssociator
 
 # With polling this slow, only a notification can end the wait before the job's 60 s timeout.
@@ -23,7 +23,7 @@ NO_POLLING_SECONDS = 60.0
 @pytest.fixture
 def notifications_only(monkeypatch: pytest.MonkeyPatch) -> None:
     for name in ("WAIT_FIRST_POLL_SECONDS", "WAIT_MAX_POLL_SECONDS", "WAIT_LISTENING_POLL_SECONDS"):
-        monkeypatch.setattr(jobs_router, name, NO_POLLING_SECONDS)
+        monkeypatch.setattr(waiting, name, NO_POLLING_SECONDS)
     monkeypatch.setitem(ASSOCIATORS, SleepingAssociator.name, SleepingAssociator)
 
 

@@ -50,6 +50,7 @@ def test_is_the_default_associator():
     assert default.to_dict() == associate(d, "assignment").to_dict()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["large", "medium", "small"])
 def test_paper_presets(name):
     # The goal of issue 3: at least 99.5% on each preset. Measured over seeds 0-99: 99.74 /
@@ -58,6 +59,7 @@ def test_paper_presets(name):
     assert mean_accuracy(name, range(100)) >= 0.995
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["large", "medium", "small"])
 def test_missed_detections_and_false_alarms(name):
     # Goal: at least 97%. Measured over seeds 0-99: 99.5 / 99.5 / 99.2%.

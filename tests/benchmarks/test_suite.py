@@ -56,6 +56,7 @@ def test_cached_data_sets_round_trip_and_are_reused():
     assert list(loaded.sensor_id) == list(original.sensor_id)
 
 
+@pytest.mark.slow
 def test_an_isolated_run_reports_repeats_accuracy_and_peak_memory():
     path = datasets.cached_dataset(datasets.scaled_config(4))
     spec = RunSpec("kmeans++", str(path), repeats=3, min_repeats=3, budget_seconds=0.0)

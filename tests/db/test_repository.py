@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import uuid
+from typing import Any
 
-from sqlalchemy import Engine
+from sqlalchemy import JSON, Engine, select, type_coerce, update
+from sqlalchemy.orm import Session
 
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.association.detections import Detections
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory, transaction
+from roadlink.db.json_columns import BatchSelection, Sensor, WindowSelection
+from roadlink.db.models import Deployment, Job
+from roadlink.queue import enqueue_job
 from roadlink.simulation import preset, simulate
 
 
@@ -34,7 +39,7 @@ def test_a_batch_comes_back_exactly_as_stored(engine: Engine) -> None:
     factory = make_session_factory(engine)
     with factory() as session:
         loaded = repository.load_detections(
-            session, deployment_id=deployment_id, selection={"batch_ids": [str(batch_id)]}
+            session, deployment_id=deployment_id, selection=BatchSelection((batch_id,))
         )
         batch = repository.get_batch(session, batch_id=batch_id)
     assert batch is not None and batch.n_detections == len(detections)
@@ -51,10 +56,10 @@ def test_a_time_window_spans_batches_and_keeps_reused_ids_apart(engine: Engine) 
     factory = make_session_factory(engine)
     with factory() as session:
         window = repository.load_detections(
-            session, deployment_id=deployment_id, selection={"start": 2.0, "end": 12.5}
+            session, deployment_id=deployment_id, selection=WindowSelection(2.0, 12.5)
         )
         count = repository.count_selected_detections(
-            session, deployment_id=deployment_id, selection={"start": 2.0, "end": 12.5}
+            session, deployment_id=deployment_id, selection=WindowSelection(2.0, 12.5)
         )
     # [2, 12.5): 4.3 and 10 from each batch.
     assert sorted(window.timestamp.tolist()) == [4.3, 4.3, 10.0, 10.0]
@@ -63,3 +68,48 @@ def test_a_time_window_spans_batches_and_keeps_reused_ids_apart(engine: Engine) 
     owners = [d.split(":")[0] for d in window.detection_id]
     # Qualified by batch, and in upload order: the first batch's detections, then the second's.
     assert owners == [str(batch_ids[0])] * 2 + [str(batch_ids[1])] * 2
+
+
+def _stored_json(session: Session, column: Any, key: Any, value: uuid.UUID) -> Any:
+    """A JSON column as the database holds it, by-passing its type."""
+    return session.execute(select(type_coerce(column, JSON())).where(key == value)).scalar_one()
+
+
+def test_selections_and_sensors_are_stored_as_the_json_they_always_were(engine: Engine) -> None:
+    """The typed columns write the JSON that rows written before them hold, and read such rows
+    back: no migration was needed."""
+    text = "position,velocity,timestamp\n0,30,1\n100,30,4.3\n"
+    deployment_id, (batch_id,) = _store(engine, read_detections_csv(text))
+    factory = make_session_factory(engine)
+    with transaction(factory) as session:
+        sensors = [Sensor("S1", 0.0), Sensor("S2", 100.0)]
+        declared = repository.create_deployment(session, name="declared", sensors=sensors).id
+        by_batch, by_window = (
+            enqueue_job(
+                session,
+                deployment_id=deployment_id,
+                selection=selection,
+                associator="kmeans",
+                params={},
+                max_attempts=1,
+            ).id
+            for selection in (BatchSelection((batch_id,)), WindowSelection(2.0, None))
+        )
+    with transaction(factory) as session:
+        assert _stored_json(session, Deployment.sensors, Deployment.id, declared) == [
+            {"sensor_id": "S1", "position": 0.0},
+            {"sensor_id": "S2", "position": 100.0},
+        ]
+        assert _stored_json(session, Job.selection, Job.id, by_batch) == {
+            "batch_ids": [str(batch_id)]
+        }
+        assert _stored_json(session, Job.selection, Job.id, by_window) == {
+            "start": 2.0,
+            "end": None,
+        }
+        legacy = type_coerce({"start": None, "end": 5.0}, JSON())
+        session.execute(update(Job).where(Job.id == by_window).values(selection=legacy))
+    with factory() as session:
+        job, deployment = session.get(Job, by_window), session.get(Deployment, declared)
+        assert job is not None and job.selection == WindowSelection(None, 5.0)
+        assert deployment is not None and deployment.sensors == sensors

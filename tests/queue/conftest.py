@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from roadlink.association.detections import Detections
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory, transaction
+from roadlink.db.json_columns import BatchSelection
 from roadlink.queue import enqueue_job
 from roadlink.simulation import preset, simulate
 from tests.helpers import EnqueueJob
@@ -49,7 +50,7 @@ def enqueue(sessions: sessionmaker[Session], paper_batch: Detections) -> Enqueue
             job = enqueue_job(
                 session,
                 deployment_id=deployment.id,
-                selection={"batch_ids": [str(batch.id)]},
+                selection=BatchSelection((batch.id,)),
                 associator=associator,
                 params=params or {},
                 max_attempts=max_attempts,

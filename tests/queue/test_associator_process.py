@@ -16,6 +16,7 @@ TIME_LIMIT = 2.0
 SLOW_START_SECONDS = 3.0
 
 
+@pytest.mark.slow
 def test_the_time_limit_counts_the_association_not_the_child_start(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

@@ -15,8 +15,9 @@ from roadlink.association import associate
 from roadlink.association.detections import Detections
 from roadlink.db import repository
 from roadlink.db.engine import transaction
+from roadlink.db.json_columns import BatchSelection
 from roadlink.queue import claim_next_job, complete_job, enqueue_job
-from roadlink.queue.jobs import (
+from roadlink.queue.transitions import (
     FINISHED_CHANNEL,
     NOTIFY_CHANNEL,
     local_enqueue_signal,
@@ -48,7 +49,7 @@ def _enqueue(
             enqueue_job(
                 session,
                 deployment_id=deployment_id,
-                selection={"batch_ids": [str(batch_id)]},
+                selection=BatchSelection((batch_id,)),
                 associator="kmeans++",
                 params={},
                 max_attempts=1,

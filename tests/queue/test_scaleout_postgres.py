@@ -26,10 +26,11 @@ from sqlalchemy import func, select, text
 
 from roadlink.db import repository
 from roadlink.db.engine import make_engine, make_session_factory, transaction
+from roadlink.db.json_columns import BatchSelection
 from roadlink.db.migrate import upgrade_to_head
 from roadlink.db.models import Job, JobResult
 from roadlink.queue import enqueue_job
-from roadlink.queue.jobs import NOTIFY_CHANNEL
+from roadlink.queue.transitions import NOTIFY_CHANNEL
 from roadlink.queue.worker import run_worker_process
 from roadlink.settings import Settings
 from roadlink.simulation import preset, simulate
@@ -129,7 +130,7 @@ def test_each_job_succeeds_exactly_once_across_killed_and_frozen_workers(
                 enqueue_job(
                     session,
                     deployment_id=deployment.id,
-                    selection={"batch_ids": [str(batch.id)]},
+                    selection=BatchSelection((batch.id,)),
                     associator="test-sleeping",
                     params={"seconds": seconds, "log": str(runs_log), "tag": tag},
                     max_attempts=settings.max_attempts,

@@ -9,9 +9,9 @@ from typing import Any
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, select, update
 
-from roadlink.api.idempotency import forget_expired_keys
 from roadlink.db.engine import make_session_factory
 from roadlink.db.models import Batch, JobIdempotencyKey, utcnow
+from roadlink.services.idempotency import forget_expired_keys
 from roadlink.settings import Settings
 from tests.helpers import MakeKey, assert_problem, bearer, row_counts
 

@@ -19,9 +19,9 @@ from roadlink.api.errors import (
     install_error_handlers,
     problem_responses,
 )
-from roadlink.api.idempotency import forgetting_expired_keys
+from roadlink.api.expired_idempotency_keys import forgetting_expired_keys
 from roadlink.api.jobresults import JobResultCache
-from roadlink.api.metrics import ApiMetrics
+from roadlink.api.prometheus import ApiMetrics
 from roadlink.api.ratelimit import TokenBuckets
 from roadlink.api.routers import (
     associators,

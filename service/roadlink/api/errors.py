@@ -1,4 +1,8 @@
-"""Errors as RFC 9457 problem details (application/problem+json), naming the field and row."""
+"""Errors as RFC 9457 problem details (application/problem+json), naming the field and row.
+
+The one place where problems become responses: the services' `ServiceProblem`, the API's own
+`ApiProblem` (its subclass, with headers), invalid requests, HTTP errors and, outermost, any
+exception no handler expected."""
 
 from __future__ import annotations
 
@@ -18,24 +22,12 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from roadlink.association.detections import Problem
+from roadlink.services.problems import ProblemItem, ServiceProblem
 
 log = logging.getLogger("roadlink")
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
 TITLES = {413: "Content Too Large", 422: "Unprocessable Content"}
-
-
-class ProblemItem(BaseModel):
-    """One thing wrong with the request: where it is and what is wrong."""
-
-    row: int | None = Field(
-        default=None, description="1-based data row (detection) at fault, when one is."
-    )
-    field: str | None = Field(default=None, description="Field or column at fault, when one is.")
-    pointer: str | None = Field(
-        default=None, description="JSON Pointer (RFC 6901) into the request body, when JSON."
-    )
-    message: str = Field(description="What is wrong, in words a person can act on.")
 
 
 class ProblemDetail(BaseModel):
@@ -77,8 +69,10 @@ class ProblemDetail(BaseModel):
     )
 
 
-class ApiProblem(Exception):
-    """Raised anywhere in a request to answer with problem details."""
+class ApiProblem(ServiceProblem):
+    """A problem the API itself finds (a key, a rate limit, a body, a view too large to draw),
+    raised anywhere in a request; it may carry headers for the answer (WWW-Authenticate,
+    Retry-After)."""
 
     def __init__(
         self,
@@ -88,10 +82,7 @@ class ApiProblem(Exception):
         errors: Sequence[ProblemItem] = (),
         headers: dict[str, str] | None = None,
     ) -> None:
-        super().__init__(detail)
-        self.status = status
-        self.detail = detail
-        self.errors = list(errors)
+        super().__init__(status, detail, errors=errors)
         self.headers = headers
 
 
@@ -133,31 +124,46 @@ def problems_from_detections(
     return items
 
 
-def _validation_items(errors: Sequence[Any]) -> list[ProblemItem]:
-    items = []
-    for error in errors:
-        field: str | None
-        location = [str(part) for part in error.get("loc", ()) if part != "body"]
-        if location and location[0] in ("query", "path", "header"):
-            field = ".".join(location[1:]) or location[0]
-            pointer = None
-        else:
-            field = ".".join(location) or None
-            pointer = "/" + "/".join(location) if location else None
-        items.append(ProblemItem(field=field, pointer=pointer, message=error.get("msg", "invalid")))
-    return items
+def validation_item(
+    location: Sequence[Any], message: str, *, under: str | None = None, pointer: bool = True
+) -> ProblemItem:
+    """The one translation of a pydantic validation error (its `loc` and `msg`) into a problem
+    item: the field as a dotted path (below `under`, when the validated value sits there in the
+    request), and, for a JSON document, the JSON Pointer to it."""
+    path = [str(part) for part in location]
+    field = ".".join([under, *path] if under else path) or None
+    return ProblemItem(
+        field=field, pointer="/" + "/".join(path) if pointer else None, message=message
+    )
+
+
+# Where FastAPI found a request parameter: the first part of a validation error's location.
+PARAMETER_SOURCES = ("query", "path", "header")
+
+
+def _request_item(error: Mapping[str, Any]) -> ProblemItem:
+    """A request validation error: a parameter is named by its name (no pointer), a body field
+    by its path, the body as a whole by nothing."""
+    location = [part for part in error.get("loc", ()) if part != "body"]
+    message = error.get("msg", "invalid")
+    if location and location[0] in PARAMETER_SOURCES:
+        return validation_item(location[1:] or location[:1], message, pointer=False)
+    if location:
+        return validation_item(location, message)
+    return ProblemItem(message=message)
 
 
 def install_error_handlers(app: FastAPI) -> None:
     """Every error the app answers, in the one problem+json shape."""
 
-    @app.exception_handler(ApiProblem)
-    async def _api_problem(request: Request, exc: ApiProblem) -> JSONResponse:
-        return problem_response(request, exc.status, exc.detail, exc.errors, exc.headers)
+    @app.exception_handler(ServiceProblem)
+    async def _service_problem(request: Request, exc: ServiceProblem) -> JSONResponse:
+        headers = exc.headers if isinstance(exc, ApiProblem) else None
+        return problem_response(request, exc.status, exc.detail, exc.errors, headers)
 
     @app.exception_handler(RequestValidationError)
     async def _invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
-        items = _validation_items(exc.errors())
+        items = [_request_item(error) for error in exc.errors()]
         detail = "; ".join(f"{i.field or 'body'}: {i.message}" for i in items[:5])
         return problem_response(request, 422, f"the request is invalid: {detail}", items)
 

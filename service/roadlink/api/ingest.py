@@ -14,10 +14,12 @@ import numpy as np
 import orjson
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from roadlink.api.errors import ApiProblem, ProblemItem, problems_from_detections
+from roadlink.api.errors import ApiProblem, problems_from_detections, validation_item
 from roadlink.api.schemas import AssociateRequest
 from roadlink.association.csvio import TooManyRows, read_csv_columns
 from roadlink.association.detections import DetectionError, Detections, Problem
+from roadlink.db.json_columns import Sensor
+from roadlink.services.problems import ProblemItem
 
 DETECTION_FIELDS = ("position", "velocity", "timestamp", "sensor_id", "detection_id", "target")
 REQUIRED_FIELDS = ("position", "velocity", "timestamp")
@@ -33,7 +35,7 @@ class _Envelope(BaseModel):
 
 
 def parse_json_batch(
-    body: bytes, sensors: list[dict[str, Any]] | None, max_detections: int
+    body: bytes, sensors: list[Sensor] | None, max_detections: int
 ) -> tuple[Detections, AssociateRequest | None]:
     """A JSON batch body into detections and the association it asks for (at most
     `max_detections`, counted before any detection is validated)."""
@@ -44,14 +46,7 @@ def parse_json_batch(
     try:
         envelope = _Envelope.model_validate(document)
     except ValidationError as exc:
-        shape = [
-            ProblemItem(
-                field=".".join(str(p) for p in e["loc"]) or None,
-                pointer="/" + "/".join(str(p) for p in e["loc"]),
-                message=e["msg"],
-            )
-            for e in exc.errors()[:50]
-        ]
+        shape = [validation_item(e["loc"], e["msg"]) for e in exc.errors()[:50]]
         raise ApiProblem(422, "the batch is not of the documented shape", errors=shape) from None
     rows = envelope.detections
     if len(rows) > max_detections:
@@ -115,9 +110,7 @@ def _shape_problems(rows: list[dict[str, Any]]) -> list[ProblemItem]:
     return items
 
 
-def parse_csv_batch(
-    body: bytes, sensors: list[dict[str, Any]] | None, max_detections: int
-) -> Detections:
+def parse_csv_batch(body: bytes, sensors: list[Sensor] | None, max_detections: int) -> Detections:
     """A detection CSV body into detections; reading stops past `max_detections` rows."""
     try:
         text = body.decode("utf-8-sig")
@@ -149,14 +142,14 @@ def validate_columns(columns: dict[str, Any], json_prefix: str | None) -> Detect
 
 
 def _fill_declared_sensors(
-    columns: dict[str, Any], sensors: list[dict[str, Any]] | None, *, json_body: bool
+    columns: dict[str, Any], sensors: list[Sensor] | None, *, json_body: bool
 ) -> dict[str, Any]:
     """With declared sensors: every detection must name a declared sensor at its position, and
     a detection without a sensor id takes the one declared at its position."""
     if sensors is None:
         return columns
-    by_id = {s["sensor_id"]: float(s["position"]) for s in sensors}
-    by_position = {float(s["position"]): s["sensor_id"] for s in sensors}
+    by_id = {s.sensor_id: s.position for s in sensors}
+    by_position = {s.position: s.sensor_id for s in sensors}
     positions = columns["position"]
     given = columns["sensor_id"] or [None] * len(positions)
     filled: list[str | None] = []

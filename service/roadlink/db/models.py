@@ -25,6 +25,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
+from roadlink.db.json_columns import Selection, SelectionType, Sensor, SensorsType
+
 # Stable constraint names, so that migrations can refer to them on every database.
 NAMING_CONVENTION = {
     "ix": "ix_%(column_0_label)s",
@@ -112,8 +114,8 @@ class Deployment(Base):
 
     id: Mapped[uuid.UUID] = mapped_column(primary_key=True, default=uuid.uuid4)
     name: Mapped[str] = mapped_column(String(200))
-    # [{"sensor_id": ..., "position": ...}] in road order, or null when sensors are not declared.
-    sensors: Mapped[list[dict[str, Any]] | None] = mapped_column(JSON)
+    # In road order, or None when sensors are not declared.
+    sensors: Mapped[list[Sensor] | None] = mapped_column(SensorsType())
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
@@ -181,8 +183,7 @@ class Job(Base):
     deployment_id: Mapped[uuid.UUID] = mapped_column(
         ForeignKey("deployment.id", ondelete="CASCADE"), index=True
     )
-    # {"batch_ids": [...]} or {"start": t0 | null, "end": t1 | null} over the deployment.
-    selection: Mapped[dict[str, Any]] = mapped_column(JSON)
+    selection: Mapped[Selection] = mapped_column(SelectionType())
     associator: Mapped[str] = mapped_column(String(100))
     params: Mapped[dict[str, Any]] = mapped_column(JSON)
     state: Mapped[JobState] = mapped_column(JobStateType(), default=JobState.QUEUED)

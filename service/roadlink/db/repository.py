@@ -15,6 +15,7 @@ from sqlalchemy.types import NullType
 
 from roadlink.association.detections import Detections
 from roadlink.association.result import AssociationResult, result_from_dict
+from roadlink.db.json_columns import BatchSelection, Selection, Sensor
 from roadlink.db.models import Batch, Deployment, Detection, Job, JobResult, JobState
 
 # Rows per INSERT executemany call: bounds the memory of one statement's parameters.
@@ -33,9 +34,7 @@ DETECTION_INSERT_COLUMNS = (
 )
 
 
-def create_deployment(
-    session: Session, *, name: str, sensors: list[dict[str, Any]] | None
-) -> Deployment:
+def create_deployment(session: Session, *, name: str, sensors: list[Sensor] | None) -> Deployment:
     """Add a deployment (sensors in road order, or None when not declared)."""
     deployment = Deployment(name=name, sensors=sensors)
     session.add(deployment)
@@ -135,7 +134,7 @@ def insert_batch(
 
 
 def count_selected_detections(
-    session: Session, *, deployment_id: uuid.UUID, selection: dict[str, Any]
+    session: Session, *, deployment_id: uuid.UUID, selection: Selection
 ) -> tuple[int, int]:
     """How many detections a job selection covers now, and at how many distinct positions."""
     query = select(func.count(), func.count(Detection.position.distinct())).where(
@@ -146,7 +145,7 @@ def count_selected_detections(
 
 
 def load_detections(
-    session: Session, *, deployment_id: uuid.UUID, selection: dict[str, Any]
+    session: Session, *, deployment_id: uuid.UUID, selection: Selection
 ) -> Detections:
     """The detections a job selects, in upload order (batch by batch, row by row).
 
@@ -173,9 +172,8 @@ def load_detections(
     # Core rows (not ORM-loaded ones): the columns need no conversion but the batch id's.
     rows = list(session.connection().execute(query).all())
     batch_key = {key: str(uuid.UUID(str(key))) for key in {r[6] for r in rows}}
-    batch_ids = selection.get("batch_ids")
-    if batch_ids:  # the order the caller listed them in
-        rank = {str(b): k for k, b in enumerate(batch_ids)}
+    if isinstance(selection, BatchSelection):  # the order the caller listed them in
+        rank = {str(b): k for k, b in enumerate(selection.batch_ids)}
         rows.sort(key=lambda r: rank[batch_key[r[6]]])  # stable: keeps the row order in a batch
     n = len(rows)
     columns = list(zip(*rows, strict=True)) if rows else [()] * 7
@@ -195,16 +193,14 @@ def load_detections(
     )
 
 
-def _selects(deployment_id: uuid.UUID, selection: dict[str, Any]) -> Any:
+def _selects(deployment_id: uuid.UUID, selection: Selection) -> Any:
     condition = Detection.deployment_id == deployment_id
-    if selection.get("batch_ids"):
-        return condition & Detection.batch_id.in_(
-            [uuid.UUID(str(b)) for b in selection["batch_ids"]]
-        )
-    if selection.get("start") is not None:
-        condition &= Detection.timestamp >= float(selection["start"])
-    if selection.get("end") is not None:
-        condition &= Detection.timestamp < float(selection["end"])
+    if isinstance(selection, BatchSelection):
+        return condition & Detection.batch_id.in_(selection.batch_ids)
+    if selection.start is not None:
+        condition &= Detection.timestamp >= selection.start
+    if selection.end is not None:
+        condition &= Detection.timestamp < selection.end
     return condition
 
 
@@ -245,7 +241,7 @@ def load_job_association(session: Session, *, job: Job) -> AssociationResult | N
 
 
 def load_detection_labels(
-    session: Session, *, deployment_id: uuid.UUID, selection: dict[str, Any]
+    session: Session, *, deployment_id: uuid.UUID, selection: Selection
 ) -> dict[str, str]:
     """The true labels of the detections a job selects, by the id its result gives them.
 

@@ -1,6 +1,6 @@
 """The job queue on the database, and the worker loop that drains it."""
 
-from roadlink.queue.jobs import (
+from roadlink.queue.transitions import (
     ClaimedJob,
     cancel_job,
     claim_next_job,

@@ -14,7 +14,7 @@ from typing import Any, Protocol
 from sqlalchemy import make_url
 
 from roadlink.queue import doorbell
-from roadlink.queue.jobs import (
+from roadlink.queue.transitions import (
     FINISHED_CHANNEL,
     NOTIFY_CHANNEL,
     local_enqueue_signal,

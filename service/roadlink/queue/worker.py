@@ -27,7 +27,7 @@ from roadlink.queue.associator_process import (
     Succeeded,
     TimedOut,
 )
-from roadlink.queue.jobs import (
+from roadlink.queue.transitions import (
     ClaimedJob,
     claim_next_job,
     complete_job,

@@ -27,8 +27,8 @@ class SlowZone(BaseModel):
         return self
 
 
-class SimulationConfig(BaseModel):
-    """Everything Algorithm 1 needs. Defaults are the paper's 'large' preset, with no faults."""
+class Traffic(BaseModel):
+    """The traffic Algorithm 1 simulates: targets, sensors, speeds and when targets enter."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -60,38 +60,9 @@ class SimulationConfig(BaseModel):
     )
     time_step: float = Field(default=0.05, gt=0, le=10, description="Integration step (s).")
     slow_zone: SlowZone | None = Field(default=None, description="Congested stretch, if any.")
-    miss_probability: float = Field(
-        default=0.0, ge=0, lt=1, description="Chance that a sensor misses a passing target."
-    )
-    false_alarm_rate: float = Field(
-        default=0.0,
-        ge=0,
-        le=10,
-        description="False alarms per sensor, as a share of the targets it sees (label 'clutter').",
-    )
-    duplicate_probability: float = Field(
-        default=0.0, ge=0, lt=1, description="Chance that a detection is reported twice."
-    )
-    velocity_noise: float = Field(
-        default=0.0, ge=0, le=1, description="Velocity measurement error (std, share of velocity)."
-    )
-    timestamp_noise: float = Field(
-        default=0.0, ge=0, description="Timestamp measurement error (std, seconds)."
-    )
-
-    @property
-    def faults(self) -> DetectorFaults:
-        """The fault settings, as the fault model that every simulator shares takes them."""
-        return DetectorFaults(
-            miss_probability=self.miss_probability,
-            false_alarm_rate=self.false_alarm_rate,
-            duplicate_probability=self.duplicate_probability,
-            velocity_noise=self.velocity_noise,
-            timestamp_noise=self.timestamp_noise,
-        )
 
     @model_validator(mode="after")
-    def _ranges(self) -> SimulationConfig:
+    def _ranges(self) -> Traffic:
         lo, hi = self.velocity_range
         if not 0 < lo <= hi:
             raise ValueError("velocity_range must satisfy 0 < min <= max")
@@ -102,6 +73,18 @@ class SimulationConfig(BaseModel):
         if min(self.sensor_positions) < 0:
             raise ValueError("sensor_positions must be >= 0 (targets enter the road at 0)")
         return self
+
+
+# The traffic's fields come first, then the faults' (pydantic orders the fields of the bases
+# from the last to the first): the order the API's SimulationOverrides lists them in.
+class SimulationConfig(DetectorFaults, Traffic):
+    """Everything Algorithm 1 needs: the traffic, and the faults of the detectors that see it.
+    Defaults are the paper's 'large' preset, with no faults."""
+
+    @property
+    def faults(self) -> DetectorFaults:
+        """The fault settings alone, as the fault model that every simulator shares takes them."""
+        return DetectorFaults(**{name: getattr(self, name) for name in DetectorFaults.model_fields})
 
 
 PRESETS: dict[str, SimulationConfig] = {

@@ -24,19 +24,25 @@ DUPLICATE_SPEED_ERROR = 0.02
 
 
 class DetectorFaults(BaseModel):
-    """What real detectors get wrong, applied after the traffic is simulated."""
+    """What real detectors get wrong, applied after the traffic is simulated. The one
+    declaration of these settings: `SimulationConfig` has them as its own."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    miss_probability: float = Field(default=0.0, ge=0, lt=1, description="Chance of a miss.")
+    miss_probability: float = Field(
+        default=0.0, ge=0, lt=1, description="Chance that a sensor misses a passing target."
+    )
     false_alarm_rate: float = Field(
-        default=0.0, ge=0, le=10, description="False alarms per sensor, per true detection."
+        default=0.0,
+        ge=0,
+        le=10,
+        description="False alarms per sensor, as a share of the targets it sees (label 'clutter').",
     )
     duplicate_probability: float = Field(
-        default=0.0, ge=0, lt=1, description="Chance that a passage is reported twice."
+        default=0.0, ge=0, lt=1, description="Chance that a detection is reported twice."
     )
     velocity_noise: float = Field(
-        default=0.0, ge=0, le=1, description="Speed measurement error (std, share of speed)."
+        default=0.0, ge=0, le=1, description="Velocity measurement error (std, share of velocity)."
     )
     timestamp_noise: float = Field(
         default=0.0, ge=0, description="Timestamp measurement error (std, seconds)."

@@ -12,11 +12,11 @@ from starlette.concurrency import run_in_threadpool
 
 from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem, problem_responses
-from roadlink.api.idempotency import first_commit_wins
 from roadlink.api.ingest import parse_csv_batch, parse_json_batch
-from roadlink.api.schemas import AssociateRequest, BatchRead
-from roadlink.api.services import read_batch, replay, require_deployment, store_batch
+from roadlink.api.schemas import AssociateRequest, BatchRead, batch_read
 from roadlink.db import repository
+from roadlink.db.models import Deployment
+from roadlink.services.batches import ParsedBatch, batch_job, store_batch_once
 
 router = APIRouter(tags=["batches"])
 
@@ -87,45 +87,25 @@ async def create_batch(
         raise ApiProblem(400, "the request body is empty: send detections as JSON or CSV")
     digest = hashlib.sha256(content_type.encode() + b"\0" + body).hexdigest()
 
-    def work(session: Session) -> tuple[BatchRead, bool]:
-        deployment = require_deployment(session, deployment_id)
-        if idempotency_key is not None:
-            earlier = repository.find_batch_by_idempotency_key(
-                session, deployment_id=deployment_id, idempotency_key=idempotency_key
-            )
-            if earlier is not None:
-                return replay(session, earlier, digest), True
+    def parse(deployment: Deployment) -> ParsedBatch:
         limit = settings.max_batch_detections
         if content_type == "text/csv":
             detections = parse_csv_batch(body, deployment.sensors, limit)
             associate = AssociateRequest(associator=associator) if associator else None
-            source = "csv"
-        else:
-            detections, associate = parse_json_batch(body, deployment.sensors, limit)
-            source = "json"
+            return ParsedBatch(detections, "csv", associate)
+        detections, associate = parse_json_batch(body, deployment.sensors, limit)
+        return ParsedBatch(detections, "json", associate)
 
-        def write() -> tuple[BatchRead, bool]:
-            batch = store_batch(
-                session,
-                settings=settings,
-                deployment_id=deployment_id,
-                detections=detections,
-                source=source,
-                associate=associate,
-                idempotency_key=idempotency_key,
-                request_sha256=digest,
-            )
-            return read_batch(session, batch), False
-
-        def winners_answer() -> tuple[BatchRead, bool] | None:
-            found = None
-            if idempotency_key is not None:
-                found = repository.find_batch_by_idempotency_key(
-                    session, deployment_id=deployment_id, idempotency_key=idempotency_key
-                )
-            return None if found is None else (replay(session, found, digest), True)
-
-        return first_commit_wins(session, write, winners_answer)
+    def work(session: Session) -> tuple[BatchRead, bool]:
+        return store_batch_once(
+            session,
+            settings=settings,
+            deployment_id=deployment_id,
+            parse=parse,
+            answer=lambda batch: batch_read(batch, batch_job(session, batch)),
+            idempotency_key=idempotency_key,
+            digest=digest,
+        )
 
     result, replayed = await run_in_threadpool(work, session)
     if replayed:
@@ -145,4 +125,4 @@ def get_batch(batch_id: uuid.UUID, session: SessionDep) -> BatchRead:
     batch = repository.get_batch(session, batch_id=batch_id)
     if batch is None:
         raise ApiProblem(404, f"there is no batch {batch_id}")
-    return read_batch(session, batch)
+    return batch_read(batch, batch_job(session, batch))

@@ -9,8 +9,9 @@ from fastapi import APIRouter, Query
 from roadlink.api.deps import SessionDep
 from roadlink.api.errors import problem_responses
 from roadlink.api.schemas import DeploymentCreate, DeploymentRead
-from roadlink.api.services import require_deployment
 from roadlink.db import repository
+from roadlink.db.json_columns import Sensor
+from roadlink.services.deployments import require_deployment
 
 router = APIRouter(prefix="/v1/deployments", tags=["deployments"])
 
@@ -27,7 +28,8 @@ def create_deployment(body: DeploymentCreate, session: SessionDep) -> Deployment
     """A stretch of road. Declare its sensors to have detections of unknown sensors rejected."""
     sensors = None
     if body.sensors:
-        sensors = [s.model_dump() for s in sorted(body.sensors, key=lambda s: s.position)]
+        in_road_order = sorted(body.sensors, key=lambda s: s.position)
+        sensors = [Sensor(s.sensor_id, s.position) for s in in_road_order]
     deployment = repository.create_deployment(session, name=body.name, sensors=sensors)
     session.commit()
     return DeploymentRead.model_validate(deployment)

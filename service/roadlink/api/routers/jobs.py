@@ -2,33 +2,26 @@
 
 from __future__ import annotations
 
-import asyncio
+import hashlib
 import time
 import uuid
 from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager, suppress
+from contextlib import asynccontextmanager
 from dataclasses import asdict
 from datetime import UTC, datetime
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, FastAPI, Path, Query, Request, Response
+from fastapi import APIRouter, FastAPI, Header, Path, Query, Request, Response
+from pydantic import BaseModel
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.concurrency import run_in_threadpool
 
 from roadlink.api.auth import principal_of
 from roadlink.api.deps import SessionDep, SessionFactoryDep, SettingsDep
-from roadlink.api.errors import ApiProblem, ProblemItem, problem_responses
-from roadlink.api.idempotency import (
-    IdempotencyKeyHeader,
-    first_commit_wins,
-    record_job_key,
-    replayed_job,
-    request_sha256,
-)
+from roadlink.api.errors import ApiProblem, problem_responses
 from roadlink.api.jobresults import SucceededJobDep, unfinished_detail
 from roadlink.api.pagelinks import DEFAULT_LIFETIME_SECONDS, MAX_LIFETIME_SECONDS, page_token
 from roadlink.api.schemas import (
-    AssociateRequest,
     AssociationResultRead,
     JobCreate,
     JobRead,
@@ -37,13 +30,15 @@ from roadlink.api.schemas import (
     TargetPositionRead,
     TargetTrajectoryRead,
 )
-from roadlink.api.services import checked_associate
 from roadlink.association.localisation import positions_at, target_index, target_trajectory
 from roadlink.db import repository
 from roadlink.db.models import ApiKey, Job, JobState
 from roadlink.plots import PlotFormat, PlotKind
-from roadlink.queue.jobs import cancel_job, enqueue_job
+from roadlink.queue.transitions import cancel_job
 from roadlink.queue.wakeup import FinishedJobs
+from roadlink.services.jobs import create_job_once, require_job
+from roadlink.services.problems import ProblemItem
+from roadlink.services.waiting import wait_for_job
 from roadlink.settings import Settings
 
 
@@ -60,13 +55,23 @@ async def _listen_for_finished_jobs(app: FastAPI) -> AsyncIterator[None]:
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"], lifespan=_listen_for_finished_jobs)
 
-# A waiting result request is woken by the job's finish notification (PostgreSQL, or a worker in
-# this process); it also re-reads the job, often at first and backing off to the maximum, which
-# is all it has when no notification can reach it (SQLite workers in other processes).
-WAIT_FIRST_POLL_SECONDS = 0.02
-WAIT_MAX_POLL_SECONDS = 0.25
-# While notifications are heard, re-reading only covers one lost in a reconnection.
-WAIT_LISTENING_POLL_SECONDS = 2.0
+IdempotencyKeyHeader = Annotated[
+    str | None,
+    Header(
+        alias="Idempotency-Key",
+        min_length=1,
+        max_length=200,
+        description="Makes retries safe: a repeated request with the same key (from the same API "
+        "key) returns the job the first one created; the same key with a different body is an "
+        "error (422). Keys are remembered for at least 24 hours.",
+    ),
+]
+
+
+def request_sha256(body: BaseModel) -> str:
+    """A digest of the request as parsed (so whitespace or key order do not make it differ)."""
+    return hashlib.sha256(body.model_dump_json().encode()).hexdigest()
+
 
 MATRIX_CSV_EXAMPLE = (
     "target,S1_detection_id,S1_velocity,S1_timestamp,S2_detection_id,S2_velocity,S2_timestamp\n"
@@ -93,92 +98,18 @@ def create_job(
     """Associate one batch, several batches of one deployment, or a deployment's detections in
     the time window [start, end) (either end may be left open). With an Idempotency-Key, a retry
     returns the job the first request created."""
-    principal, digest = principal_of(request).id, request_sha256(body)
-    if idempotency_key is not None:
-        earlier = replayed_job(
-            session,
-            principal=principal,
-            idempotency_key=idempotency_key,
-            digest=digest,
-            response=response,
-        )
-        if earlier is not None:
-            return earlier
-    params = checked_associate(AssociateRequest(associator=body.associator, params=body.params))
-    selection: dict[str, Any]
-    if body.deployment_id is not None:
-        deployment_id = body.deployment_id
-        if repository.get_deployment(session, deployment_id=deployment_id) is None:
-            raise ApiProblem(404, f"there is no deployment {deployment_id}")
-        selection = {"start": body.start, "end": body.end}
-    else:
-        batch_ids = [body.batch_id] if body.batch_id is not None else list(body.batch_ids or [])
-        deployments = set()
-        for k, batch_id in enumerate(batch_ids):
-            batch = repository.get_batch(session, batch_id=batch_id)
-            if batch is None:
-                field = "batch_id" if body.batch_id is not None else f"batch_ids.{k}"
-                raise ApiProblem(
-                    422,
-                    f"there is no batch {batch_id}",
-                    errors=[ProblemItem(field=field, message="no such batch")],
-                )
-            deployments.add(batch.deployment_id)
-        if len(deployments) > 1:
-            raise ApiProblem(
-                422,
-                "the batches belong to different deployments; a job covers one deployment",
-                errors=[ProblemItem(field="batch_ids", message="span several deployments")],
-            )
-        deployment_id = deployments.pop()
-        selection = {"batch_ids": list(dict.fromkeys(str(b) for b in batch_ids))}
-    n, positions = repository.count_selected_detections(
-        session, deployment_id=deployment_id, selection=selection
+    job, replayed = create_job_once(
+        session,
+        settings=settings,
+        asked=body,
+        principal=principal_of(request).id,
+        idempotency_key=idempotency_key,
+        digest=request_sha256(body),
+        answer=JobRead.model_validate,
     )
-    if n == 0:
-        raise ApiProblem(
-            422,
-            "the job selects no detections: widen the time window or post a batch first",
-            errors=[ProblemItem(field="start", message="the window holds no detections")],
-        )
-    if positions < 2:
-        raise ApiProblem(
-            422,
-            "the job's detections all come from one sensor position; association needs at "
-            "least two: add the batches of the other sensors",
-            errors=[ProblemItem(field="batch_ids", message="one sensor position only")],
-        )
-
-    def write() -> JobRead:
-        job = enqueue_job(
-            session,
-            deployment_id=deployment_id,
-            selection=selection,
-            associator=body.associator,
-            params=params,
-            max_attempts=settings.max_attempts,
-        )
-        record_job_key(
-            session,
-            job_id=job.id,
-            principal=principal,
-            idempotency_key=idempotency_key,
-            digest=digest,
-        )
-        return JobRead.model_validate(job)
-
-    def winners_answer() -> JobRead | None:
-        if idempotency_key is None:
-            return None
-        return replayed_job(
-            session,
-            principal=principal,
-            idempotency_key=idempotency_key,
-            digest=digest,
-            response=response,
-        )
-
-    return first_commit_wins(session, write, winners_answer)
+    if replayed:
+        response.headers["Idempotent-Replayed"] = "true"
+    return job
 
 
 @router.get(
@@ -208,7 +139,7 @@ def list_jobs(
 )
 def get_job(job_id: uuid.UUID, session: SessionDep) -> JobRead:
     """State (queued, running, succeeded, failed, cancelled), progress and attempts."""
-    return JobRead.model_validate(_require_job(session, job_id))
+    return JobRead.model_validate(require_job(session, job_id))
 
 
 @router.get(
@@ -246,34 +177,14 @@ async def get_result(
     """The result of a succeeded job: the same document `roadlink associate --json` prints for
     the same detections and parameters. 409 while the job is unfinished (or if it failed or was
     cancelled)."""
-    deadline = time.monotonic() + min(wait, settings.max_wait_seconds)
-    finished_jobs: FinishedJobs | None = getattr(request.app.state, "finished_jobs", None)
-    # Watched before the first read, so that a finish between the read and the wait is heard.
-    finished = None if finished_jobs is None or wait <= 0 else finished_jobs.watch(job_id)
-    try:
-        pause = WAIT_FIRST_POLL_SECONDS
-        while True:
-            job = await run_in_threadpool(_read_job, sessions, job_id)
-            if job is None:
-                raise ApiProblem(404, f"there is no job {job_id}")
-            if job.state.finished or time.monotonic() >= deadline:
-                break
-            if await request.is_disconnected():
-                raise ApiProblem(408, "the client went away while waiting")
-            timeout = min(pause, max(deadline - time.monotonic(), 0.0))
-            if finished is None:
-                await asyncio.sleep(timeout)
-            else:
-                with suppress(TimeoutError):
-                    await asyncio.wait_for(finished.wait(), timeout)
-                finished.clear()
-            listening = finished_jobs is not None and finished_jobs.listening
-            pause = min(
-                pause * 2, WAIT_LISTENING_POLL_SECONDS if listening else WAIT_MAX_POLL_SECONDS
-            )
-    finally:
-        if finished is not None and finished_jobs is not None:
-            finished_jobs.unwatch(job_id, finished)
+    job = await wait_for_job(
+        job_id,
+        wait=wait,
+        max_wait=settings.max_wait_seconds,
+        read_job=lambda: run_in_threadpool(_read_job, sessions, job_id),
+        finished_jobs=getattr(request.app.state, "finished_jobs", None),
+        client_gone=request.is_disconnected,
+    )
     if job.state != JobState.SUCCEEDED:
         raise ApiProblem(409, unfinished_detail(job))
     stored = await run_in_threadpool(_read_result, sessions, job_id)
@@ -417,7 +328,7 @@ def create_page_link(
     carries a token signed for this job only; it stops working when it expires or when the key
     that asked for it is revoked. Anyone holding the link can read the page until then, so
     share it as you would the result."""
-    _require_job(session, job_id)
+    require_job(session, job_id)
     url = page_url(settings, job_id)
     principal = principal_of(request)
     key = None if principal.prefix is None else session.get(ApiKey, uuid.UUID(principal.id))
@@ -440,19 +351,19 @@ def create_page_link(
 def cancel(job_id: uuid.UUID, session: SessionDep) -> JobRead:
     """Cancel a queued or running job (a running one stops at its next progress report and
     stores nothing). Cancelling a cancelled job is a no-op; a finished one is 409."""
-    job = _require_job(session, job_id)
+    job = require_job(session, job_id)
     if job.state == JobState.CANCELLED:
         return JobRead.model_validate(job)
     if not cancel_job(session, job_id=job_id):
         session.rollback()
-        job = _require_job(session, job_id)
+        job = require_job(session, job_id)
         if job.state != JobState.CANCELLED:
             raise ApiProblem(
                 409, f"job {job_id} has already {job.state}; there is nothing to cancel"
             )
     session.commit()
     session.expire_all()
-    return JobRead.model_validate(_require_job(session, job_id))
+    return JobRead.model_validate(require_job(session, job_id))
 
 
 def page_url(settings: Settings, job_id: uuid.UUID) -> str:
@@ -461,13 +372,6 @@ def page_url(settings: Settings, job_id: uuid.UUID) -> str:
     link with a token in it must not point at a host an attacker named."""
     path = f"/jobs/{job_id}"
     return path if settings.public_url is None else settings.public_url.rstrip("/") + path
-
-
-def _require_job(session: Session, job_id: uuid.UUID) -> Job:
-    job = repository.get_job(session, job_id=job_id)
-    if job is None:
-        raise ApiProblem(404, f"there is no job {job_id}")
-    return job
 
 
 def _read_job(sessions: sessionmaker[Session], job_id: uuid.UUID) -> Job | None:

@@ -37,6 +37,7 @@ from roadlink.api.jobresults import CachedResult, JobResultCache, job_result
 from roadlink.api.pagelinks import token_key
 from roadlink.association.metrics import wrongly_grouped
 from roadlink.db import repository
+from roadlink.db.json_columns import BatchSelection, Selection
 from roadlink.db.models import ApiKey, JobState
 from roadlink.plots import PLOT_KINDS, target_colours
 
@@ -292,13 +293,12 @@ def _hex(colour: tuple[float, float, float, float]) -> str:
     return "#" + "".join(f"{round(255 * c):02x}" for c in colour[:3])
 
 
-def _describe_selection(selection: dict[str, Any]) -> str:
-    if selection.get("batch_ids"):
-        ids = [str(b) for b in selection["batch_ids"]]
+def _describe_selection(selection: Selection) -> str:
+    if isinstance(selection, BatchSelection):
+        ids = [str(b) for b in selection.batch_ids]
         return ("batch " if len(ids) == 1 else "batches ") + ", ".join(ids)
-    start, end = selection.get("start"), selection.get("end")
-    left = "-inf" if start is None else f"{start:g}"
-    right = "+inf" if end is None else f"{end:g}"
+    left = "-inf" if selection.start is None else f"{selection.start:g}"
+    right = "+inf" if selection.end is None else f"{selection.end:g}"
     return f"the deployment's detections with timestamps in [{left}, {right})"
 
 

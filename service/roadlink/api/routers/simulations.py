@@ -9,10 +9,13 @@ from fastapi import APIRouter
 from pydantic import BaseModel, ValidationError
 
 from roadlink.api.deps import SessionDep, SettingsDep
-from roadlink.api.errors import ApiProblem, ProblemItem, problem_responses
-from roadlink.api.schemas import BatchRead, SimulationCreate
-from roadlink.api.services import read_batch, require_deployment, store_batch
+from roadlink.api.errors import ApiProblem, problem_responses, validation_item
+from roadlink.api.schemas import BatchRead, SimulationCreate, batch_read
 from roadlink.association.detections import Detections
+from roadlink.db.json_columns import Sensor
+from roadlink.services.batches import ParsedBatch, batch_job, store_batch
+from roadlink.services.deployments import require_deployment
+from roadlink.services.problems import ProblemItem
 from roadlink.simulation import preset, simulate
 
 # Algorithm 1 costs time per target and sensor; beyond this a request would hold an API thread
@@ -39,16 +42,12 @@ def create_simulation(
     overrides = cast(BaseModel, body.config).model_dump(exclude_none=True)
     declared = deployment.sensors
     if declared and "sensor_positions" not in overrides:
-        overrides["sensor_positions"] = [float(s["position"]) for s in declared]
+        overrides["sensor_positions"] = [s.position for s in declared]
     try:
         config = preset(body.preset, **overrides)
     except ValidationError as exc:
         items = [
-            ProblemItem(
-                field="config." + ".".join(str(p) for p in e["loc"]) if e["loc"] else "config",
-                message=e["msg"],
-            )
-            for e in exc.errors()
+            validation_item(e["loc"], e["msg"], under="config", pointer=False) for e in exc.errors()
         ]
         raise ApiProblem(422, "the simulation settings are invalid", errors=items) from None
     expected = config.n_targets * len(config.sensor_positions) * (1 + config.false_alarm_rate)
@@ -67,20 +66,16 @@ def create_simulation(
         session,
         settings=settings,
         deployment_id=deployment.id,
-        detections=detections,
-        source="simulation",
-        associate=body.associate,
+        batch=ParsedBatch(detections, "simulation", body.associate),
     )
     session.commit()
-    return read_batch(session, batch)
+    return batch_read(batch, batch_job(session, batch))
 
 
-def _with_declared_sensor_ids(
-    detections: Detections, declared: list[dict[str, object]]
-) -> Detections:
+def _with_declared_sensor_ids(detections: Detections, declared: list[Sensor]) -> Detections:
     """Name each simulated detection's sensor as the deployment does, or 422 when the
     simulated sensors are not the declared ones."""
-    by_position = {float(s["position"]): str(s["sensor_id"]) for s in declared}  # type: ignore[arg-type]
+    by_position = {s.position: s.sensor_id for s in declared}
     unknown = sorted({float(p) for p in detections.sensor_positions} - by_position.keys())
     if unknown:
         raise ApiProblem(

@@ -3,7 +3,13 @@ here, as `roadlink.api.schemas.X`."""
 
 from __future__ import annotations
 
-from roadlink.api.schemas.batches import AssociateRequest, BatchCreate, BatchRead, DetectionIn
+from roadlink.api.schemas.batches import (
+    AssociateRequest,
+    BatchCreate,
+    BatchRead,
+    DetectionIn,
+    batch_read,
+)
 from roadlink.api.schemas.catalogue import AssociatorRead, SimulationCreate, SimulationOverrides
 from roadlink.api.schemas.deployments import DeploymentCreate, DeploymentRead, SensorSpec
 from roadlink.api.schemas.examples import EXAMPLE_ID
@@ -50,4 +56,5 @@ __all__ = [
     "TargetRead",
     "TargetTrajectoryRead",
     "TrackPointRead",
+    "batch_read",
 ]

@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from roadlink.api.schemas.examples import EXAMPLE_ID
 from roadlink.api.schemas.jobs import JobRead
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.db.models import Batch, Job
 
 
 class DetectionIn(BaseModel):
@@ -100,3 +101,10 @@ class BatchRead(BaseModel):
     source: Literal["json", "csv", "simulation"]
     created_at: datetime
     job: JobRead | None = Field(default=None, description="The job enqueued with the batch.")
+
+
+def batch_read(batch: Batch, job: Job | None) -> BatchRead:
+    """The stored batch as the API shows it, with the job enqueued with it."""
+    read = BatchRead.model_validate(batch)
+    read.job = None if job is None else JobRead.model_validate(job)
+    return read

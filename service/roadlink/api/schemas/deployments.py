@@ -13,7 +13,8 @@ from roadlink.api.schemas.examples import EXAMPLE_ID
 class SensorSpec(BaseModel):
     """A sensor of a deployment: its id and where it is along the road."""
 
-    model_config = ConfigDict(extra="forbid")
+    # from_attributes: a deployment read back holds its sensors as `db.json_columns.Sensor`s.
+    model_config = ConfigDict(extra="forbid", from_attributes=True)
 
     sensor_id: str = Field(min_length=1, max_length=200, description="The id detections use.")
     position: float = Field(

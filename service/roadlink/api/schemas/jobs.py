@@ -4,13 +4,18 @@ from __future__ import annotations
 
 import uuid
 from datetime import datetime
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
 from roadlink.api.schemas.examples import EXAMPLE_ID
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.db.json_columns import Selection
 from roadlink.db.models import JobState
+
+
+def _as_json(selection: Selection) -> dict[str, Any]:
+    return selection.to_json()
 
 
 class JobRead(BaseModel):
@@ -43,7 +48,8 @@ class JobRead(BaseModel):
 
     id: uuid.UUID
     deployment_id: uuid.UUID
-    selection: dict[str, Any] = Field(
+    # Shown as stored: the JSON of the typed selection.
+    selection: Annotated[dict[str, Any], BeforeValidator(_as_json)] = Field(
         description="{batch_ids: [...]} or {start, end}: the time window [start, end)."
     )
     associator: str

@@ -29,6 +29,7 @@ from sqlalchemy import event, func, select, text, update
 from sqlalchemy.orm import Session
 
 from roadlink.association.result import AssociationResult
+from roadlink.db.json_columns import Selection
 from roadlink.db.models import Job, JobResult, JobState, utcnow
 from roadlink.queue import doorbell
 
@@ -142,7 +143,7 @@ class ClaimedJob:
 
     id: uuid.UUID
     deployment_id: uuid.UUID
-    selection: dict[str, Any]
+    selection: Selection
     associator: str
     params: dict[str, Any]
     attempts: int
@@ -153,7 +154,7 @@ def enqueue_job(
     session: Session,
     *,
     deployment_id: uuid.UUID,
-    selection: dict[str, Any],
+    selection: Selection,
     associator: str,
     params: dict[str, Any],
     max_attempts: int,

@@ -1,0 +1,114 @@
+"""Storing a batch of detections, with its job when association is asked for, once per
+Idempotency-Key; and finding a batch's job."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TypeVar
+
+from sqlalchemy.orm import Session
+
+from roadlink.association.detections import Detections
+from roadlink.db import repository
+from roadlink.db.json_columns import BatchSelection
+from roadlink.db.models import Batch, Deployment, Job
+from roadlink.queue.transitions import enqueue_job
+from roadlink.services.deployments import require_deployment
+from roadlink.services.idempotency import first_commit_wins, replayed_batch
+from roadlink.services.jobs import AssociationAsked, checked_params
+from roadlink.settings import Settings
+
+Answer = TypeVar("Answer")
+
+
+@dataclass(frozen=True)
+class ParsedBatch:
+    """A request's detections, validated, where they came from, and the association asked for."""
+
+    detections: Detections
+    source: str  # json | csv | simulation
+    associate: AssociationAsked | None
+
+
+def store_batch_once(
+    session: Session,
+    *,
+    settings: Settings,
+    deployment_id: uuid.UUID,
+    parse: Callable[[Deployment], ParsedBatch],
+    answer: Callable[[Batch], Answer],
+    idempotency_key: str | None,
+    digest: str,
+) -> tuple[Answer, bool]:
+    """Parse and store a batch of the deployment and commit; with a key used before, store
+    nothing. Returns the batch's `answer` (taken inside the transaction) and whether it replays
+    an earlier request's."""
+    deployment = require_deployment(session, deployment_id)
+
+    def earlier() -> tuple[Answer, bool] | None:
+        found = None
+        if idempotency_key is not None:
+            found = repository.find_batch_by_idempotency_key(
+                session, deployment_id=deployment_id, idempotency_key=idempotency_key
+            )
+        return None if found is None else (answer(replayed_batch(found, digest)), True)
+
+    replayed = earlier()
+    if replayed is not None:
+        return replayed
+    parsed = parse(deployment)
+
+    def write() -> tuple[Answer, bool]:
+        batch = store_batch(
+            session,
+            settings=settings,
+            deployment_id=deployment_id,
+            batch=parsed,
+            idempotency_key=idempotency_key,
+            request_sha256=digest,
+        )
+        return answer(batch), False
+
+    return first_commit_wins(session, write, earlier)
+
+
+def store_batch(
+    session: Session,
+    *,
+    settings: Settings,
+    deployment_id: uuid.UUID,
+    batch: ParsedBatch,
+    idempotency_key: str | None = None,
+    request_sha256: str | None = None,
+) -> Batch:
+    """Insert the batch and, when asked, its job, in the caller's transaction."""
+    batch_id = uuid.uuid4()
+    job_id = None
+    if batch.associate is not None:
+        params = checked_params(batch.associate)
+        job = enqueue_job(
+            session,
+            deployment_id=deployment_id,
+            selection=BatchSelection((batch_id,)),
+            associator=batch.associate.associator,
+            params=params,
+            max_attempts=settings.max_attempts,
+        )
+        job_id = job.id
+    return repository.insert_batch(
+        session,
+        batch_id=batch_id,
+        deployment_id=deployment_id,
+        detections=batch.detections,
+        source=batch.source,
+        idempotency_key=idempotency_key,
+        request_sha256=request_sha256,
+        job_id=job_id,
+    )
+
+
+def batch_job(session: Session, batch: Batch) -> Job | None:
+    """The job enqueued with the batch, if any."""
+    return None if batch.job_id is None else repository.get_job(session, job_id=batch.job_id)
