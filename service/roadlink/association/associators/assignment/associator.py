@@ -55,11 +55,15 @@ class AssignmentAssociator(Associator):
             track = build_tracks(s, model, params, leader, progress, r / passes, 1.0 / passes)
             if r + 1 < rounds:
                 model = learn_segments(s, track, params, prior)
+        # The last re-pairing sweep judges the links it keeps (docs/assignment.md, Confidence).
+        confidence = np.full(track.size, np.nan)
         for sweep in range(params.refine_sweeps):
-            track = refine_boundaries(s, model, params, track)
+            last = sweep + 1 == params.refine_sweeps
+            track = refine_boundaries(s, model, params, track, confidence if last else None)
             if progress:
                 progress((rounds + sweep + 1) / passes)
-        confidence = link_confidence(s, model, params, track)
+        if params.refine_sweeps == 0:
+            confidence = link_confidence(s, model, params, track)
         target = confirm_targets(s, model, params, track)
         target, self.link_confidence = cut_weak_links(s, target, confidence, params.min_confidence)
         return target

@@ -15,6 +15,11 @@ from scipy.sparse.csgraph import connected_components, min_weight_full_bipartite
 
 Nodes = npt.NDArray[np.int64]
 Costs = npt.NDArray[np.float64]
+Mask = npt.NDArray[np.bool_]
+
+# Odds beyond e^40 either way are certainty (`chosen_marginals`): clipped, so that sums of
+# ratios stay finite.
+LOG_ODDS_LIMIT = 40.0
 
 BATCH_EDGES = 2000  # edges per sparse assignment: small enough to stay linear, few enough calls
 COST_QUANTUM_INVERSE = 1024.0  # sparse matching's costs are whole multiples of its inverse
@@ -114,3 +119,53 @@ def _match_block(left: Nodes, right: Nodes, cost: Costs, alone: float) -> tuple[
     row, col = min_weight_full_bipartite_matching(graph)
     real = (row < n_l) & (col < n_r)
     return lu[row[real]], ru[col[real]]
+
+
+def chosen_marginals(left: Nodes, right: Nodes, cost: Costs, chosen: Mask, gate: float) -> Costs:
+    """For each chosen edge of a one-to-one matching (`chosen` marks them among the candidate
+    edges left -> right), the approximate probability that it is in the matching, every node
+    free to stay alone at cost gate / 2; NaN for the other edges.
+
+    The odds against a chosen edge sum the likelihood ratios of the matchings one move away:
+    the edge dropped (both ends alone), one of its ends taking a free node instead, and the edge
+    swapping partners with another chosen edge, or dropping it for a candidate that joins the
+    two's far ends."""
+    n = cost.size
+    marginal = np.full(n, np.nan)
+    if not chosen.any():
+        return marginal
+    _, li = np.unique(left, return_inverse=True)
+    _, ri = np.unique(right, return_inverse=True)
+    # Log likelihood of each edge against leaving both its ends alone.
+    log_w = np.clip(-0.5 * (cost - gate), -LOG_ODDS_LIMIT, LOG_ODDS_LIMIT)
+    edge_of_left = np.full(li.max() + 1, -1, dtype=np.int64)
+    edge_of_right = np.full(ri.max() + 1, -1, dtype=np.int64)
+    picked = np.flatnonzero(chosen)
+    edge_of_left[li[picked]] = picked
+    edge_of_right[ri[picked]] = picked
+    against = np.zeros(n)
+    against[picked] = np.exp(-log_w[picked])  # the edge dropped
+    rival = np.flatnonzero(~chosen)
+    ea, eb = edge_of_left[li[rival]], edge_of_right[ri[rival]]
+    # One end takes the free node at the rival's other end.
+    only_a = (ea >= 0) & (eb < 0)
+    np.add.at(against, ea[only_a], np.exp(log_w[rival[only_a]] - log_w[ea[only_a]]))
+    only_b = (ea < 0) & (eb >= 0)
+    np.add.at(against, eb[only_b], np.exp(log_w[rival[only_b]] - log_w[eb[only_b]]))
+    # Both ends taken: the rival replaces both chosen edges, and with it their far ends join
+    # when that edge is a candidate too (a swap, counted once, from the rival of lower index).
+    both = (ea >= 0) & (eb >= 0)
+    f, ea, eb = rival[both], ea[both], eb[both]
+    keys = li * (ri.max() + 1) + ri
+    order = np.argsort(keys)
+    wanted = li[eb] * (ri.max() + 1) + ri[ea]
+    at = np.minimum(np.searchsorted(keys[order], wanted), n - 1)
+    g = np.where(keys[order][at] == wanted, order[at], -1)
+    lonely = log_w[f] - log_w[ea] - log_w[eb]
+    swapped = np.where(g >= 0, lonely + log_w[np.maximum(g, 0)], -np.inf)
+    counted = (g < 0) | (f < g)
+    ratio = np.exp(lonely) + np.where(counted, np.exp(swapped), 0.0)
+    np.add.at(against, ea, ratio)
+    np.add.at(against, eb, ratio)
+    marginal[picked] = 1.0 / (1.0 + against[picked])
+    return marginal

@@ -82,11 +82,6 @@ SKEW_SIGNIFICANCE = 2.0
 # learned bias this many spreads up.
 LONGEST_TRAVEL_SPREADS = 2.0
 
-# Confidence (`confidence`): Sinkhorn balancing stops after this many iterations, or once no
-# scaling moves by more than this.
-SINKHORN_ITERATIONS = 200
-SINKHORN_TOLERANCE = 1e-6
-
 # The parameters in time units are held to these shares of a typical travel time between
 # neighbouring sensors (`within_time_scale`).
 DUPLICATE_WINDOW_SHARE = 0.25

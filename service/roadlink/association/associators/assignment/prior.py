@@ -214,10 +214,17 @@ class CandidatePairs:
         moved = travel[::stride][None, :] + moves[:, None]
         scale = np.broadcast_to(kinematic[::stride], moved.shape)
         ahead = moved > 0
-        background = np.histogram(np.log(moved[ahead] / scale[ahead]), PRIOR_BINS)[0] * (
-            stride / moves.size
-        )
+        background = bin_counts(np.log(moved[ahead] / scale[ahead])) * (stride / moves.size)
         return BiasHistogram.of(values, background)
+
+
+def bin_counts(values: FloatArray) -> FloatArray:
+    """How many values fall in each of PRIOR_BINS (the last bin closed), as `np.histogram`
+    counts them, without its sort: the bins are even."""
+    n_bins = PRIOR_BINS.size - 1
+    inside = values[(values >= PRIOR_BINS[0]) & (values <= PRIOR_BINS[-1])]
+    index = np.minimum(((inside - PRIOR_BINS[0]) / PRIOR_BIN).astype(np.int64), n_bins - 1)
+    return np.bincount(index, minlength=n_bins).astype(np.float64)
 
 
 @dataclass
@@ -232,7 +239,7 @@ class BiasHistogram:
     @classmethod
     def of(cls, values: FloatArray, background: FloatArray) -> BiasHistogram:
         """The values' histogram over PRIOR_BINS, less the background, smoothed."""
-        histogram = np.histogram(values, PRIOR_BINS)[0].astype(np.float64)
+        histogram = bin_counts(values)
         return cls(
             values,
             np.convolve(histogram - background, PRIOR_SMOOTHING, mode="same"),

@@ -6,7 +6,7 @@ import numpy as np
 
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.gating import Pairs, gated_pairs
-from roadlink.association.associators.assignment.matching import match
+from roadlink.association.associators.assignment.matching import chosen_marginals, match
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import (
     REFINE_GATE_FACTOR,
@@ -22,7 +22,12 @@ from roadlink.association.detections import FloatArray, IntArray
 
 
 def refine_boundaries(
-    s: Sensors, model: SegmentModel, params: AssignmentParams, track: IntArray
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    track: IntArray,
+    confidence: FloatArray | None = None,
+    relink: bool = True,
 ) -> IntArray:
     """Re-pair the tracks across every sensor boundary, seeing both sides whole.
 
@@ -32,6 +37,11 @@ def refine_boundaries(
     speed with the suffix's. This undoes swaps between targets that crossed at near-equal speeds
     and joins fragments a failed link split (a prefix without a suffix meets a suffix without a
     prefix). Each boundary costs time in proportion to the detections near it.
+
+    With `confidence` (one value per detection), the sweep also writes there, for each link it
+    keeps, how sure it is against its rivals at the boundary (`matching.chosen_marginals`, every
+    piece free to stay alone at half of `gate_cost`): a link is decided, and judged, for the
+    last time at the boundary before its far end. `relink=False` judges the links as they are.
     """
     nxt, prv = successors(s, track)
     in_track = track >= 0
@@ -51,19 +61,25 @@ def refine_boundaries(
         head_count[m] = 1.0 + head_count[prv[m]]
         if k == n_sensors:
             break
-        ends = ends_at_boundary(s, model, params, nxt, prv, in_track, k)
+        gate = REFINE_GATE_FACTOR * params.gate_cost
+        ends = ends_at_boundary(s, model, params, nxt, prv, in_track, k, gate)
         if ends is None:
             continue
         tails, pairs = ends
         cost = boundary_cost(params, model, pairs, (head_sum, head_count), (tail_sum, tail_count))
-        # Splitting a track costs more here than declining a link did: a track the forward pass
-        # built is evidence in itself, so re-pairing must pay for itself.
-        linked_a, linked_b = match(pairs.a, pairs.b, cost, REFINE_GATE_FACTOR * params.gate_cost)
-        crossing = tails[nxt[tails] >= 0]
-        prv[nxt[crossing]] = -1
-        nxt[crossing] = -1
-        nxt[linked_a] = linked_b
-        prv[linked_b] = linked_a
+        if relink:
+            # Splitting a track costs more here than declining a link did: a track the forward
+            # pass built is evidence in itself, so re-pairing must pay for itself.
+            linked_a, linked_b = match(pairs.a, pairs.b, cost, gate)
+            crossing = tails[nxt[tails] >= 0]
+            prv[nxt[crossing]] = -1
+            nxt[crossing] = -1
+            nxt[linked_a] = linked_b
+            prv[linked_b] = linked_a
+        if confidence is not None:
+            chosen = nxt[pairs.a] == pairs.b
+            marginal = chosen_marginals(pairs.a, pairs.b, cost, chosen, params.gate_cost)
+            confidence[pairs.b[chosen]] = marginal[chosen]
     return tracks_from_links(s, prv, in_track)
 
 
@@ -88,19 +104,6 @@ def boundary_cost(
     )
 
 
-def prefix_sums(s: Sensors, prv: IntArray, in_track: BoolArray) -> tuple[FloatArray, FloatArray]:
-    """Sum of relative speeds, and count, from every detection's track start to it (accumulated
-    forwards, sensor by sensor)."""
-    total = np.where(in_track, s.relative_speed, 0.0)
-    count = in_track.astype(np.float64)
-    for k in range(s.positions.size):
-        m = s.members(k)
-        m = m[prv[m] >= 0]
-        total[m] += total[prv[m]]
-        count[m] += count[prv[m]]
-    return total, count
-
-
 def suffix_sums(s: Sensors, nxt: IntArray, in_track: BoolArray) -> tuple[FloatArray, FloatArray]:
     """Sum of relative speeds, and count, from every detection to its track's end (accumulated
     backwards, sensor by sensor)."""
@@ -122,9 +125,11 @@ def ends_at_boundary(
     prv: IntArray,
     in_track: BoolArray,
     k: int,
+    gate: float,
 ) -> tuple[IntArray, Pairs] | None:
     """The prefixes' last detections before sensor k and the candidate links from them to the
-    suffixes' first detections from sensor k on (None when either side has none)."""
+    suffixes' first detections from sensor k on, those costing less than `gate` on the travel
+    time alone (None when either side has none)."""
     reach = params.max_skip + 1
     n_sensors = s.positions.size
     before = np.concatenate([s.members(q) for q in range(max(0, k - reach), k)])
@@ -140,6 +145,6 @@ def ends_at_boundary(
     found: list[Pairs] = []
     for q in range(k, min(k + reach, n_sensors)):
         near = tails[s.sensor[tails] >= q - reach]
-        pairs = gated_pairs(s, model, params, near, q, REFINE_GATE_FACTOR * params.gate_cost)
+        pairs = gated_pairs(s, model, params, near, q, gate)
         found.append(pairs.take(is_head[pairs.b]))
     return tails, Pairs.concatenate(found)
