@@ -26,6 +26,7 @@ from starlette.concurrency import run_in_threadpool
 
 from roadlink.api.errors import ApiProblem, ProblemItem
 from roadlink.api.schemas import JobRead
+from roadlink.api.tasks import in_background
 from roadlink.db import repository
 from roadlink.db.engine import transaction
 from roadlink.db.idempotency import (
@@ -151,10 +152,5 @@ async def forgetting_expired_keys(app: FastAPI) -> AsyncIterator[None]:
                 log.warning("could not forget expired Idempotency-Keys", exc_info=True)
             await asyncio.sleep(FORGET_EVERY_SECONDS)
 
-    task = asyncio.create_task(loop())
-    try:
+    async with in_background(loop()):
         yield
-    finally:
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await task
