@@ -13,6 +13,11 @@ mix, not the limiter, is measured) gets, from each client in turn:
 A probe, in a process of its own, requests `/healthz` every 0.2 s throughout. Reports the status
 counts, every 5xx and transport error, and the probe's latency percentiles; exits 1 when any
 answer was 5xx or lost, or when the probe's slowest answer exceeded `--healthz-limit` seconds.
+
+The server logs each stall of its event loop and each garbage collection of at least
+`STALL_LOG_MS` (ROADLINK_STALL_LOG_MS, see roadlink/api/stalls.py); every probe slower than
+`--healthz-limit` is reported with the stalls logged while it waited, which say what it waited
+for.
 """
 
 from __future__ import annotations
@@ -23,22 +28,29 @@ import multiprocessing
 import multiprocessing.queues
 import os
 import random
+import re
 import tempfile
 import threading
 import time
 import uuid
 from collections import Counter
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 
 import httpx
 import numpy as np
 
+from roadlink.api.stalls import core_wait
 from roadlink.association.csvio import write_detections_csv
 from roadlink.simulation import preset, simulate
 from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 
 PROBE_INTERVAL = 0.2
+STALL_LOG_MS = 20
+# A stall is logged when it ends, up to a lag sample's interval after the answer it delayed.
+STALL_WINDOW_SECONDS = 0.1
+_STALL_LINE = re.compile(r"^(\S+ \S+) WARNING ((?:event loop|garbage collection).*)$")
 
 
 @dataclass
@@ -48,6 +60,7 @@ class Tally:
     statuses: Counter[str] = field(default_factory=Counter)
     failures: list[str] = field(default_factory=list)
     probe_seconds: list[float] = field(default_factory=list)
+    slow_probes: list[tuple[float, float, float]] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def record(self, what: str, answer: httpx.Response | None, error: str = "") -> None:
@@ -168,26 +181,32 @@ def _client(
 
 def _probe(url: str, seconds: float, results: multiprocessing.queues.Queue) -> None:
     """In a process of its own, so that the clients' threads cannot delay its measurements:
-    (status or error, seconds) of a /healthz request every PROBE_INTERVAL."""
+    (status or error, wall-clock start, seconds, seconds the probe itself waited for a core) of a
+    /healthz request every PROBE_INTERVAL."""
     stop_at = time.monotonic() + seconds
-    answers: list[tuple[str, float]] = []
+    answers: list[tuple[str, float, float, float]] = []
     with httpx.Client(base_url=url, timeout=30) as http:
         while time.monotonic() < stop_at:
-            began = time.perf_counter()
+            wall, began, waited = time.time(), time.perf_counter(), core_wait() or 0.0
             try:
                 status = str(http.get("/healthz").status_code)
             except httpx.HTTPError as exc:
                 status = repr(exc)
-            answers.append((status, time.perf_counter() - began))
+            elapsed = time.perf_counter() - began
+            answers.append((status, wall, elapsed, (core_wait() or 0.0) - waited))
             time.sleep(PROBE_INTERVAL)
     results.put(answers)
 
 
-def _record_probe(answers: list[tuple[str, float]], tally: Tally) -> None:
-    for status, seconds in answers:
+def _record_probe(
+    answers: list[tuple[str, float, float, float]], tally: Tally, limit: float
+) -> None:
+    for status, wall, seconds, waited in answers:
         if status.isdigit():
             tally.statuses[f"healthz {status}"] += 1
             tally.probe_seconds.append(seconds)
+            if seconds > limit:
+                tally.slow_probes.append((wall, seconds, waited))
             if int(status) >= 500:
                 tally.failures.append(f"healthz: {status}")
         else:
@@ -195,18 +214,94 @@ def _record_probe(answers: list[tuple[str, float]], tally: Tally) -> None:
             tally.failures.append(f"healthz: {status}")
 
 
-def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
+def _logged_stalls(log: Path) -> list[tuple[float, str]]:
+    """(wall-clock time, message) of each stall the server logged."""
+    stalls = []
+    for line in log.read_text(errors="replace").splitlines():
+        found = _STALL_LINE.match(line)
+        if found:
+            when = datetime.strptime(found[1], "%Y-%m-%d %H:%M:%S,%f").timestamp()
+            stalls.append((when, found[2]))
+    return stalls
+
+
+def _explain(slow: list[tuple[float, float, float]], stalls: list[tuple[float, str]]) -> list[str]:
+    """Each slow probe, how long the probe itself waited for a core, and the stalls the server
+    logged while it waited (or that none were)."""
+    lines = []
+    for wall, seconds, waited in sorted(slow):
+        during = [
+            f"+{(when - wall) * 1000:.0f} ms: {message}"
+            for when, message in stalls
+            if wall <= when <= wall + seconds + STALL_WINDOW_SECONDS
+        ]
+        stamp = datetime.fromtimestamp(wall).strftime("%H:%M:%S.%f")[:-3]
+        lines.append(
+            f"{stamp} {seconds * 1000:.0f} ms (the probe waited {waited * 1000:.0f} ms for a "
+            "core): " + (" | ".join(during) or "no stall")
+        )
+    return lines
+
+
+def _stall_counts(stalls: list[tuple[float, str]]) -> dict[str, int]:
+    """How many stalls of each kind the server logged, and how many of them were 100 ms or more."""
+    counts: Counter[str] = Counter()
+    for _, message in stalls:
+        kind = "gc" if message.startswith("garbage") else "loop lag"
+        counts[kind] += 1
+        if int(re.search(r"(\d+) ms", message)[1]) >= 100:  # type: ignore[index]
+            counts[f"{kind} >= 100 ms"] += 1
+    return dict(sorted(counts.items()))
+
+
+def _proc_stats() -> dict[int, tuple[int, int, float]]:
+    """(parent pid, nice, CPU seconds) of every process, from Linux's /proc (empty elsewhere)."""
+    ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    stats = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # the process ended meanwhile
+            continue
+        # After the name: state, ppid, ... utime (12th), stime (13th), ..., nice (17th).
+        cpu = (int(fields[11]) + int(fields[12])) / ticks
+        stats[int(stat.parent.name)] = (int(fields[1]), int(fields[16]), cpu)
+    return stats
+
+
+def _server_cpu(pid: int) -> dict[str, float]:
+    """CPU seconds of the server's process tree so far: the API process, its descendants at
+    normal priority (the plot renderer) and those at a lower one (workers, associators)."""
+    stats = _proc_stats()
+    if pid not in stats:
+        return {}
+    cpu = {"api": stats[pid][2]}
+    tree = {pid}
+    for _ in range(3):  # workers' associator processes are the API's grandchildren
+        tree |= {child for child, (parent, _, _) in stats.items() if parent in tree}
+    for child in tree - {pid}:
+        _, nice, seconds = stats[child]
+        name = f"children at nice {nice}"
+        cpu[name] = cpu.get(name, 0.0) + seconds
+    return {name: round(seconds, 1) for name, seconds in sorted(cpu.items())}
+
+
+def run_soak(
+    clients: int, seconds: float, wait: float, healthz_limit: float = 0.1
+) -> dict[str, object]:
     """Start a server, soak it; the figures (see the module's docstring)."""
     directory = Path(tempfile.mkdtemp(prefix="roadlink-soak-"))
     env = sqlite_env(
         directory,
         ROADLINK_RATE_LIMIT_PER_SECOND="10000",
         ROADLINK_RATE_LIMIT_BURST="10000",
+        ROADLINK_STALL_LOG_MS=str(STALL_LOG_MS),
     )
     admin = roadlink("keys", "create", "--scope", "admin", env=env, cwd=directory).strip()
     server = LiveServer(directory, env, free_port())
     server.start(workers=2)
     tally = Tally()
+    generator_cpu = time.process_time()
     try:
         with httpx.Client(
             base_url=server.url, headers={"Authorization": f"Bearer {admin}"}
@@ -230,11 +325,13 @@ def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
             thread.start()
         for thread in threads:
             thread.join()
-        _record_probe(results.get(timeout=seconds + 120), tally)
+        _record_probe(results.get(timeout=seconds + 120), tally, healthz_limit)
         prober.join()
+        server_cpu = _server_cpu(server.pid())
     finally:
         server.stop()
     probe = np.array(tally.probe_seconds) if tally.probe_seconds else np.array([np.nan])
+    stalls = _logged_stalls(directory / "serve.log")
     return {
         "clients": clients,
         "seconds": seconds,
@@ -246,7 +343,13 @@ def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
         "healthz_p99_ms": round(float(np.percentile(probe, 99)) * 1000, 1),
         "healthz_max_ms": round(float(probe.max()) * 1000, 1),
         "healthz_over_100ms": int((probe > 0.1).sum()),
+        f"stalls_logged_over_{STALL_LOG_MS}ms": _stall_counts(stalls),
+        "slow_probes": _explain(tally.slow_probes, stalls),
         "cpus": os.cpu_count(),
+        "cpu_seconds": {
+            **server_cpu,
+            "load generator": round(time.process_time() - generator_cpu, 1),
+        },
     }
 
 
@@ -258,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--healthz-limit", type=float, default=0.1)
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = parser.parse_args(argv)
-    figures = run_soak(args.clients, args.seconds, args.wait)
+    figures = run_soak(args.clients, args.seconds, args.wait, args.healthz_limit)
     if args.json:
         print(json.dumps(figures, indent=2))
     else:
