@@ -14,6 +14,14 @@ A probe, in a process of its own, requests `/healthz` every 0.2 s throughout. Re
 counts, every 5xx and transport error, and the probe's latency percentiles; exits 1 when any
 answer was 5xx or lost, or when the probe's slowest answer exceeded `--healthz-limit` seconds.
 
+The clients' threads, the load generator, run in a process of their own at `LOAD_NICENESS`, a
+lower priority than the server's: real clients are on other machines, and on a development
+machine's two cores a load generator at the server's priority measured its own competition for
+the cores, not the service. Only the load generator is lowered: the API process and the probe
+keep their priority, so a stall of the API's own making still shows. (The server's workers and
+plot renderer run at a lower priority of the server's own choosing, as in production.) The
+report gives the CPU seconds of each, and of the machine as a whole: the machine may be shared.
+
 The server logs each stall of its event loop and each garbage collection of at least
 `STALL_LOG_MS` (ROADLINK_STALL_LOG_MS, see roadlink/api/stalls.py); every probe slower than
 `--healthz-limit` is reported with the stalls logged while it waited, which say what it waited
@@ -47,6 +55,7 @@ from roadlink.simulation import preset, simulate
 from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 
 PROBE_INTERVAL = 0.2
+LOAD_NICENESS = 10
 STALL_LOG_MS = 20
 # A stall is logged when it ends, up to a lag sample's interval after the answer it delayed.
 STALL_WINDOW_SECONDS = 0.1
@@ -179,11 +188,35 @@ def _client(
             _call(tally, "positions", http, "GET", f"/v1/jobs/{job}/positions", params={"t": 10})
 
 
-def _probe(url: str, seconds: float, results: multiprocessing.queues.Queue) -> None:
+def _generate_load(
+    clients: int,
+    url: str,
+    key: str,
+    deployment: str,
+    stop_at: float,
+    wait: float,
+    results: multiprocessing.queues.Queue,
+) -> None:
+    """In a process of its own at LOAD_NICENESS (see the module's docstring): the clients'
+    (status counts, failures, CPU seconds)."""
+    os.nice(LOAD_NICENESS)
+    tally = Tally()
+    threads = [
+        threading.Thread(target=_client, args=(k, url, key, deployment, stop_at, wait, tally))
+        for k in range(clients)
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    results.put((dict(tally.statuses), tally.failures, time.process_time()))
+
+
+def _probe(url: str, stop_at: float, results: multiprocessing.queues.Queue) -> None:
     """In a process of its own, so that the clients' threads cannot delay its measurements:
     (status or error, wall-clock start, seconds, seconds the probe itself waited for a core) of a
-    /healthz request every PROBE_INTERVAL."""
-    stop_at = time.monotonic() + seconds
+    /healthz request every PROBE_INTERVAL until `stop_at` (time.monotonic(), which all
+    processes share)."""
     answers: list[tuple[str, float, float, float]] = []
     with httpx.Client(base_url=url, timeout=30) as http:
         while time.monotonic() < stop_at:
@@ -269,6 +302,21 @@ def _proc_stats() -> dict[int, tuple[int, int, float]]:
     return stats
 
 
+def _load_average() -> list[float]:
+    """The machine's load over the last 1, 5 and 15 minutes (it may be shared)."""
+    return [round(load, 2) for load in os.getloadavg()]
+
+
+def _machine_busy() -> float:
+    """CPU seconds all cores have been busy since boot, from Linux's /proc/stat (0 elsewhere)."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    except OSError:
+        return 0.0
+    ticks = [int(f) for f in fields[:8]]  # user, nice, system, idle, iowait, irq, softirq, steal
+    return (sum(ticks) - ticks[3] - ticks[4]) / os.sysconf("SC_CLK_TCK")
+
+
 def _server_cpu(pid: int) -> dict[str, float]:
     """CPU seconds of the server's process tree so far: the API process, its descendants at
     normal priority (the plot renderer) and those at a lower one (workers, associators)."""
@@ -301,7 +349,7 @@ def run_soak(
     server = LiveServer(directory, env, free_port())
     server.start(workers=2)
     tally = Tally()
-    generator_cpu = time.process_time()
+    load_before = _load_average()
     try:
         with httpx.Client(
             base_url=server.url, headers={"Authorization": f"Bearer {admin}"}
@@ -309,24 +357,23 @@ def run_soak(
             answer = http.post("/v1/deployments", json={"name": "soak"})
             answer.raise_for_status()
             deployment = answer.json()["id"]
-        results: multiprocessing.queues.Queue = multiprocessing.get_context("spawn").Queue()
-        prober = multiprocessing.get_context("spawn").Process(
-            target=_probe, args=(server.url, seconds, results)
-        )
-        prober.start()
+        spawn = multiprocessing.get_context("spawn")
+        probed: multiprocessing.queues.Queue = spawn.Queue()
+        loaded: multiprocessing.queues.Queue = spawn.Queue()
         stop_at = time.monotonic() + seconds
-        threads = [
-            threading.Thread(
-                target=_client, args=(k, server.url, admin, deployment, stop_at, wait, tally)
-            )
-            for k in range(clients)
-        ]
-        for thread in threads:
-            thread.start()
-        for thread in threads:
-            thread.join()
-        _record_probe(results.get(timeout=seconds + 120), tally, healthz_limit)
+        prober = spawn.Process(target=_probe, args=(server.url, stop_at, probed))
+        load = (clients, server.url, admin, deployment, stop_at, wait, loaded)
+        generator = spawn.Process(target=_generate_load, args=load)
+        busy = _machine_busy()
+        prober.start()
+        generator.start()
+        statuses, failures, generator_cpu = loaded.get(timeout=seconds + 2 * wait + 300)
+        tally.statuses.update(statuses)
+        tally.failures.extend(failures)
+        _record_probe(probed.get(timeout=seconds + 120), tally, healthz_limit)
         prober.join()
+        generator.join()
+        machine_cpu = _machine_busy() - busy
         server_cpu = _server_cpu(server.pid())
     finally:
         server.stop()
@@ -348,8 +395,11 @@ def run_soak(
         "cpus": os.cpu_count(),
         "cpu_seconds": {
             **server_cpu,
-            "load generator": round(time.process_time() - generator_cpu, 1),
+            "load generator": round(generator_cpu, 1),
+            "machine": round(machine_cpu, 1),
         },
+        "load_average_before": load_before,
+        "load_average_after": _load_average(),
     }
 
 
