@@ -24,14 +24,6 @@ log = logging.getLogger("roadlink")
 # Python's default is 5 ms (see `serve_command`).
 API_SWITCH_INTERVAL_SECONDS = 0.001
 
-# The collector's thresholds in the API process (Python's default: 700, 10, 10). With young
-# collections every 700 allocations, the objects of requests in flight (a `?wait=` lasts
-# seconds) were promoted to the oldest generation, whose full collections walk every cached
-# result (roadlink/api/jobresults.py) and stop every request: 8 of them, 26-76 ms each, in a
-# 180 s benchmarks/soak.py. At 10,000 that soak saw none, and young collections of up to 53 ms
-# (most of what they hold is garbage, to be freed either way).
-API_GC_THRESHOLDS = (10_000, 10, 10)
-
 # Spawned, not forked: a worker must not inherit the API's threads, sockets or connections.
 _spawn = multiprocessing.get_context("spawn")
 
@@ -164,7 +156,6 @@ def serve_command(
     # for 100-370 ms at a time (measured with benchmarks/soak.py).
     gc.collect()
     gc.freeze()
-    gc.set_threshold(*API_GC_THRESHOLDS)
     try:
         uvicorn.run(
             api,
