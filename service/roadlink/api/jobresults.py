@@ -36,7 +36,7 @@ the most recent result is kept whatever its size. Everything cached is walked by
 garbage collection, which stops every request meanwhile, so the budget is kept to what the few
 jobs that people look at need. Each cached detection is an object the collector walks (its
 track's `SensorPass`): at 100,000 (a thousand jobs of 100 detections, as benchmarks/soak.py
-fills it) a full collection took 43 ms of CPU on an idle core and 70-215 ms under the soak's
+fills it) a full collection took 43 ms of CPU on an idle core and 40-215 ms under the soak's
 load, which /healthz answers waited for; at 20,000, 5 ms on an idle core."""
 
 
