@@ -13,6 +13,19 @@ mix, not the limiter, is measured) gets, from each client in turn:
 A probe, in a process of its own, requests `/healthz` every 0.2 s throughout. Reports the status
 counts, every 5xx and transport error, and the probe's latency percentiles; exits 1 when any
 answer was 5xx or lost, or when the probe's slowest answer exceeded `--healthz-limit` seconds.
+
+The clients' threads, the load generator, run in a process of their own at `LOAD_NICENESS`, a
+lower priority than the server's: real clients are on other machines, and on a development
+machine's two cores a load generator at the server's priority measured its own competition for
+the cores, not the service. Only the load generator is lowered: the API process and the probe
+keep their priority, so a stall of the API's own making still shows. (The server's workers and
+plot renderer run at a lower priority of the server's own choosing, as in production.) The
+report gives the CPU seconds of each, and of the machine as a whole: the machine may be shared.
+
+The server logs each stall of its event loop and each garbage collection of at least
+`STALL_LOG_MS` (ROADLINK_STALL_LOG_MS, see roadlink/api/stalls.py); every probe slower than
+`--healthz-limit` is reported with the stalls logged while it waited, which say what it waited
+for.
 """
 
 from __future__ import annotations
@@ -23,22 +36,30 @@ import multiprocessing
 import multiprocessing.queues
 import os
 import random
+import re
 import tempfile
 import threading
 import time
 import uuid
 from collections import Counter
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 
 import httpx
 import numpy as np
 
+from roadlink.api.stalls import core_wait
 from roadlink.association.csvio import write_detections_csv
 from roadlink.simulation import preset, simulate
 from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 
 PROBE_INTERVAL = 0.2
+LOAD_NICENESS = 10
+STALL_LOG_MS = 20
+# A stall is logged when it ends, up to a lag sample's interval after the answer it delayed.
+STALL_WINDOW_SECONDS = 0.1
+_STALL_LINE = re.compile(r"^(\S+ \S+) WARNING ((?:event loop|garbage collection).*)$")
 
 
 @dataclass
@@ -48,6 +69,7 @@ class Tally:
     statuses: Counter[str] = field(default_factory=Counter)
     failures: list[str] = field(default_factory=list)
     probe_seconds: list[float] = field(default_factory=list)
+    slow_probes: list[tuple[float, float, float]] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def record(self, what: str, answer: httpx.Response | None, error: str = "") -> None:
@@ -166,28 +188,58 @@ def _client(
             _call(tally, "positions", http, "GET", f"/v1/jobs/{job}/positions", params={"t": 10})
 
 
-def _probe(url: str, seconds: float, results: multiprocessing.queues.Queue) -> None:
+def _generate_load(
+    clients: int,
+    url: str,
+    key: str,
+    deployment: str,
+    stop_at: float,
+    wait: float,
+    results: multiprocessing.queues.Queue,
+) -> None:
+    """In a process of its own at LOAD_NICENESS (see the module's docstring): the clients'
+    (status counts, failures, CPU seconds)."""
+    os.nice(LOAD_NICENESS)
+    tally = Tally()
+    threads = [
+        threading.Thread(target=_client, args=(k, url, key, deployment, stop_at, wait, tally))
+        for k in range(clients)
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    results.put((dict(tally.statuses), tally.failures, time.process_time()))
+
+
+def _probe(url: str, stop_at: float, results: multiprocessing.queues.Queue) -> None:
     """In a process of its own, so that the clients' threads cannot delay its measurements:
-    (status or error, seconds) of a /healthz request every PROBE_INTERVAL."""
-    stop_at = time.monotonic() + seconds
-    answers: list[tuple[str, float]] = []
+    (status or error, wall-clock start, seconds, seconds the probe itself waited for a core) of a
+    /healthz request every PROBE_INTERVAL until `stop_at` (time.monotonic(), which all
+    processes share)."""
+    answers: list[tuple[str, float, float, float]] = []
     with httpx.Client(base_url=url, timeout=30) as http:
         while time.monotonic() < stop_at:
-            began = time.perf_counter()
+            wall, began, waited = time.time(), time.perf_counter(), core_wait() or 0.0
             try:
                 status = str(http.get("/healthz").status_code)
             except httpx.HTTPError as exc:
                 status = repr(exc)
-            answers.append((status, time.perf_counter() - began))
+            elapsed = time.perf_counter() - began
+            answers.append((status, wall, elapsed, (core_wait() or 0.0) - waited))
             time.sleep(PROBE_INTERVAL)
     results.put(answers)
 
 
-def _record_probe(answers: list[tuple[str, float]], tally: Tally) -> None:
-    for status, seconds in answers:
+def _record_probe(
+    answers: list[tuple[str, float, float, float]], tally: Tally, limit: float
+) -> None:
+    for status, wall, seconds, waited in answers:
         if status.isdigit():
             tally.statuses[f"healthz {status}"] += 1
             tally.probe_seconds.append(seconds)
+            if seconds > limit:
+                tally.slow_probes.append((wall, seconds, waited))
             if int(status) >= 500:
                 tally.failures.append(f"healthz: {status}")
         else:
@@ -195,18 +247,109 @@ def _record_probe(answers: list[tuple[str, float]], tally: Tally) -> None:
             tally.failures.append(f"healthz: {status}")
 
 
-def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
+def _logged_stalls(log: Path) -> list[tuple[float, str]]:
+    """(wall-clock time, message) of each stall the server logged."""
+    stalls = []
+    for line in log.read_text(errors="replace").splitlines():
+        found = _STALL_LINE.match(line)
+        if found:
+            when = datetime.strptime(found[1], "%Y-%m-%d %H:%M:%S,%f").timestamp()
+            stalls.append((when, found[2]))
+    return stalls
+
+
+def _explain(slow: list[tuple[float, float, float]], stalls: list[tuple[float, str]]) -> list[str]:
+    """Each slow probe, how long the probe itself waited for a core, and the stalls the server
+    logged while it waited (or that none were)."""
+    lines = []
+    for wall, seconds, waited in sorted(slow):
+        during = [
+            f"+{(when - wall) * 1000:.0f} ms: {message}"
+            for when, message in stalls
+            if wall <= when <= wall + seconds + STALL_WINDOW_SECONDS
+        ]
+        stamp = datetime.fromtimestamp(wall).strftime("%H:%M:%S.%f")[:-3]
+        lines.append(
+            f"{stamp} {seconds * 1000:.0f} ms (the probe waited {waited * 1000:.0f} ms for a "
+            "core): " + (" | ".join(during) or "no stall")
+        )
+    return lines
+
+
+def _stall_counts(stalls: list[tuple[float, str]]) -> dict[str, int]:
+    """How many stalls of each kind the server logged, and how many of them were 100 ms or more."""
+    counts: Counter[str] = Counter()
+    for _, message in stalls:
+        kind = "gc" if message.startswith("garbage") else "loop lag"
+        counts[kind] += 1
+        if int(re.search(r"(\d+) ms", message)[1]) >= 100:  # type: ignore[index]
+            counts[f"{kind} >= 100 ms"] += 1
+    return dict(sorted(counts.items()))
+
+
+def _proc_stats() -> dict[int, tuple[int, int, float]]:
+    """(parent pid, nice, CPU seconds) of every process, from Linux's /proc (empty elsewhere)."""
+    ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    stats = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # the process ended meanwhile
+            continue
+        # After the name: state, ppid, ... utime (12th), stime (13th), ..., nice (17th).
+        cpu = (int(fields[11]) + int(fields[12])) / ticks
+        stats[int(stat.parent.name)] = (int(fields[1]), int(fields[16]), cpu)
+    return stats
+
+
+def _load_average() -> list[float]:
+    """The machine's load over the last 1, 5 and 15 minutes (it may be shared)."""
+    return [round(load, 2) for load in os.getloadavg()]
+
+
+def _machine_busy() -> float:
+    """CPU seconds all cores have been busy since boot, from Linux's /proc/stat (0 elsewhere)."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    except OSError:
+        return 0.0
+    ticks = [int(f) for f in fields[:8]]  # user, nice, system, idle, iowait, irq, softirq, steal
+    return (sum(ticks) - ticks[3] - ticks[4]) / os.sysconf("SC_CLK_TCK")
+
+
+def _server_cpu(pid: int) -> dict[str, float]:
+    """CPU seconds of the server's process tree so far: the API process, its descendants at
+    normal priority (the plot renderer) and those at a lower one (workers, associators)."""
+    stats = _proc_stats()
+    if pid not in stats:
+        return {}
+    cpu = {"api": stats[pid][2]}
+    tree = {pid}
+    for _ in range(3):  # workers' associator processes are the API's grandchildren
+        tree |= {child for child, (parent, _, _) in stats.items() if parent in tree}
+    for child in tree - {pid}:
+        _, nice, seconds = stats[child]
+        name = f"children at nice {nice}"
+        cpu[name] = cpu.get(name, 0.0) + seconds
+    return {name: round(seconds, 1) for name, seconds in sorted(cpu.items())}
+
+
+def run_soak(
+    clients: int, seconds: float, wait: float, healthz_limit: float = 0.1
+) -> dict[str, object]:
     """Start a server, soak it; the figures (see the module's docstring)."""
     directory = Path(tempfile.mkdtemp(prefix="roadlink-soak-"))
     env = sqlite_env(
         directory,
         ROADLINK_RATE_LIMIT_PER_SECOND="10000",
         ROADLINK_RATE_LIMIT_BURST="10000",
+        ROADLINK_STALL_LOG_MS=str(STALL_LOG_MS),
     )
     admin = roadlink("keys", "create", "--scope", "admin", env=env, cwd=directory).strip()
     server = LiveServer(directory, env, free_port())
     server.start(workers=2)
     tally = Tally()
+    load_before = _load_average()
     try:
         with httpx.Client(
             base_url=server.url, headers={"Authorization": f"Bearer {admin}"}
@@ -214,27 +357,28 @@ def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
             answer = http.post("/v1/deployments", json={"name": "soak"})
             answer.raise_for_status()
             deployment = answer.json()["id"]
-        results: multiprocessing.queues.Queue = multiprocessing.get_context("spawn").Queue()
-        prober = multiprocessing.get_context("spawn").Process(
-            target=_probe, args=(server.url, seconds, results)
-        )
-        prober.start()
+        spawn = multiprocessing.get_context("spawn")
+        probed: multiprocessing.queues.Queue = spawn.Queue()
+        loaded: multiprocessing.queues.Queue = spawn.Queue()
         stop_at = time.monotonic() + seconds
-        threads = [
-            threading.Thread(
-                target=_client, args=(k, server.url, admin, deployment, stop_at, wait, tally)
-            )
-            for k in range(clients)
-        ]
-        for thread in threads:
-            thread.start()
-        for thread in threads:
-            thread.join()
-        _record_probe(results.get(timeout=seconds + 120), tally)
+        prober = spawn.Process(target=_probe, args=(server.url, stop_at, probed))
+        load = (clients, server.url, admin, deployment, stop_at, wait, loaded)
+        generator = spawn.Process(target=_generate_load, args=load)
+        busy = _machine_busy()
+        prober.start()
+        generator.start()
+        statuses, failures, generator_cpu = loaded.get(timeout=seconds + 2 * wait + 300)
+        tally.statuses.update(statuses)
+        tally.failures.extend(failures)
+        _record_probe(probed.get(timeout=seconds + 120), tally, healthz_limit)
         prober.join()
+        generator.join()
+        machine_cpu = _machine_busy() - busy
+        server_cpu = _server_cpu(server.pid())
     finally:
         server.stop()
     probe = np.array(tally.probe_seconds) if tally.probe_seconds else np.array([np.nan])
+    stalls = _logged_stalls(directory / "serve.log")
     return {
         "clients": clients,
         "seconds": seconds,
@@ -246,7 +390,16 @@ def run_soak(clients: int, seconds: float, wait: float) -> dict[str, object]:
         "healthz_p99_ms": round(float(np.percentile(probe, 99)) * 1000, 1),
         "healthz_max_ms": round(float(probe.max()) * 1000, 1),
         "healthz_over_100ms": int((probe > 0.1).sum()),
+        f"stalls_logged_over_{STALL_LOG_MS}ms": _stall_counts(stalls),
+        "slow_probes": _explain(tally.slow_probes, stalls),
         "cpus": os.cpu_count(),
+        "cpu_seconds": {
+            **server_cpu,
+            "load generator": round(generator_cpu, 1),
+            "machine": round(machine_cpu, 1),
+        },
+        "load_average_before": load_before,
+        "load_average_after": _load_average(),
     }
 
 
@@ -258,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--healthz-limit", type=float, default=0.1)
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = parser.parse_args(argv)
-    figures = run_soak(args.clients, args.seconds, args.wait)
+    figures = run_soak(args.clients, args.seconds, args.wait, args.healthz_limit)
     if args.json:
         print(json.dumps(figures, indent=2))
     else:

@@ -74,6 +74,12 @@ class Settings(BaseSettings):
         default=60.0, ge=0, description="Longest `?wait=` a result request may ask for."
     )
     log_level: str = Field(default="info", description="Log level of the API and the workers.")
+    stall_log_ms: float = Field(
+        default=100.0,
+        ge=0,
+        description="The API logs, as a warning with its cause, each garbage collection and each "
+        "delay of its event loop at least this long (0 = none); all are in /metrics.",
+    )
     auth: Literal["required", "disabled"] = Field(
         default="required",
         description="`required`: every /v1 request needs an API key (`Authorization: Bearer`). "

@@ -4,6 +4,7 @@ at a time, one target's trajectory; the same answers as the core on the same det
 from __future__ import annotations
 
 import json
+import os
 import re
 import uuid
 import xml.etree.ElementTree as ET
@@ -14,7 +15,8 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from roadlink.api.jobresults import JobResultCache
+from roadlink.api import jobresults
+from roadlink.api.jobresults import JobResultCache, render_elsewhere
 from roadlink.association import associate
 from roadlink.association.csvio import read_detections_csv
 from roadlink.association.localisation import positions_at, target_trajectory
@@ -22,7 +24,7 @@ from roadlink.association.metrics import wrongly_grouped
 from roadlink.association.result import AssociationResult
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory
-from roadlink.queue.worker import Worker
+from roadlink.queue.worker import WORKER_NICENESS, Worker
 from tests.helpers import MakeKey, assert_problem, bearer
 
 SVG = "{http://www.w3.org/2000/svg}"
@@ -125,6 +127,14 @@ def test_the_cache_keeps_within_its_budget(local: AssociationResult) -> None:
     cache.get(third, lambda: local)
     assert cache.get(second, lambda: None) is None
     assert cache.get(first, lambda: None) is not None
+
+
+def test_plots_are_drawn_at_the_workers_lower_priority(local: AssociationResult) -> None:
+    """Drawing, the API's heaviest work, must not take a core from its event loop."""
+    assert render_elsewhere(local, "time-space", "svg").startswith(b"<?xml")
+    assert jobresults._renderer is not None
+    niceness = jobresults._renderer.submit(os.nice, 0).result()
+    assert niceness == min(os.nice(0) + WORKER_NICENESS, 19)
 
 
 def test_positions_agree_with_the_core(

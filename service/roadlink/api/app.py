@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from typing import Any
 
 from fastapi import Depends, FastAPI
@@ -33,6 +35,7 @@ from roadlink.api.routers import (
     simulations,
 )
 from roadlink.api.schemas import BatchCreate
+from roadlink.api.stalls import StallWatch
 from roadlink.db.engine import make_engine, make_session_factory
 from roadlink.settings import Settings
 
@@ -76,12 +79,13 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
         description=DESCRIPTION,
         openapi_tags=TAGS,
         generate_unique_id_function=operation_id,
-        lifespan=forgetting_expired_keys,
+        lifespan=_lifespan,
     )
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessions = make_session_factory(engine)
     app.state.metrics = ApiMetrics(app.state.sessions)
+    app.state.stalls = StallWatch(app.state.metrics.registry, settings.stall_log_ms / 1000)
     app.state.job_results = JobResultCache()
     limited = settings.auth == "required" and settings.rate_limit_per_second > 0
     app.state.rate_limits = (
@@ -106,6 +110,12 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
     app.include_router(pages.router)
     app.openapi = lambda: _openapi_with_batch_body(app)  # type: ignore[method-assign]
     return app
+
+
+@asynccontextmanager
+async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    async with forgetting_expired_keys(app), app.state.stalls.running():
+        yield
 
 
 def _openapi_with_batch_body(app: FastAPI) -> dict[str, Any]:

@@ -11,6 +11,7 @@ from collections.abc import AsyncIterator
 from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 
+from roadlink.api.tasks import in_background
 from roadlink.services.idempotency import forget_expired_keys
 
 log = logging.getLogger("roadlink")
@@ -39,10 +40,5 @@ async def forgetting_expired_keys(app: FastAPI) -> AsyncIterator[None]:
                 log.warning("could not forget expired Idempotency-Keys", exc_info=True)
             await asyncio.sleep(FORGET_EVERY_SECONDS)
 
-    task = asyncio.create_task(loop())
-    try:
+    async with in_background(loop()):
         yield
-    finally:
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await task

@@ -9,6 +9,7 @@ least recently used first out, within a budget of detections.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import threading
 import uuid
 from collections import OrderedDict
@@ -27,12 +28,16 @@ from roadlink.association.result import AssociationResult
 from roadlink.db import repository
 from roadlink.db.models import Job, JobState
 from roadlink.plots import render_plot
+from roadlink.queue.worker import WORKER_NICENESS
 
-CACHE_DETECTIONS = 100_000
+CACHE_DETECTIONS = 20_000
 """Detections the cache may hold across jobs (a few hundred bytes each, with their tracks);
 the most recent result is kept whatever its size. Everything cached is walked by each full
 garbage collection, which stops every request meanwhile, so the budget is kept to what the few
-jobs that people look at need."""
+jobs that people look at need. Each cached detection is an object the collector walks (its
+track's `SensorPass`): at 100,000 (a thousand jobs of 100 detections, as benchmarks/soak.py
+fills it) a full collection took 43 ms of CPU on an idle core and 40-215 ms under the soak's
+load, which /healthz answers waited for; at 20,000, 5 ms on an idle core."""
 
 
 class CachedResult:
@@ -75,12 +80,19 @@ def render_elsewhere(result: AssociationResult, kind: str, fmt: str) -> bytes:
     the API process that stalls the event loop, so /healthz and every other request wait behind
     a plot. Measured with benchmarks/soak.py (16 clients): /healthz p99 225 ms with plots drawn
     in the API process.
+
+    The renderer runs at the workers' lower priority: drawing is the API process tree's biggest
+    use of CPU (a third of two cores in the soak), and at the API's own priority it kept the
+    event loop waiting for a core for up to 100 ms at a time.
     """
     global _renderer
     with _renderer_lock:
         if _renderer is None:
             _renderer = ProcessPoolExecutor(
-                max_workers=1, mp_context=multiprocessing.get_context("spawn")
+                max_workers=1,
+                mp_context=multiprocessing.get_context("spawn"),
+                initializer=os.nice,
+                initargs=(WORKER_NICENESS,),
             )
         renderer = _renderer
     return renderer.submit(render_plot, result, kind, fmt).result()
