@@ -2,7 +2,7 @@
 
 Each case is simulated with seeds 0 .. N-1 and grouped with the default parameters; the table
 gives the mean, the standard deviation and the worst seed's accuracy (the paper's figure, see
-service/roadlink/association/metrics.py). Writes benchmarks/results/assignment_accuracy.json.
+service/roadlink/association/scores.py). Writes benchmarks/results/assignment_accuracy.json.
 
     python benchmarks/assignment_accuracy.py --seeds 20
 """

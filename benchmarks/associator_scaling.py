@@ -32,7 +32,7 @@ RESULTS = Path(__file__).parent / "results" / "associator_scaling.json"
 def measure(n_targets: int, repeats: int, seed: int) -> dict[str, float | int]:
     """Simulate, then time and trace the associator on one size (run inside the subprocess)."""
     from roadlink.association.associators.assignment import AssignmentAssociator
-    from roadlink.association.metrics import score_grouping
+    from roadlink.association.scores import score_grouping
     from roadlink.simulation import SimulationConfig, simulate
 
     config = SimulationConfig(

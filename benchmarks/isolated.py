@@ -125,7 +125,7 @@ def _pump(stream: Any, lines: queue.Queue[str | None]) -> None:
 def _child(spec: RunSpec) -> None:
     from benchmarks.datasets import load_detections
     from benchmarks.methods import grouping_method
-    from roadlink.association.metrics import score_grouping
+    from roadlink.association.scores import score_grouping
 
     detections = load_detections(Path(spec.dataset))
     group = grouping_method(spec.method)

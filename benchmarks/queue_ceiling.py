@@ -33,7 +33,7 @@ import numpy as np
 
 from roadlink.association import associate
 from roadlink.association.detections import CLUTTER, Detections
-from roadlink.association.metrics import score_grouping
+from roadlink.association.scores import score_grouping
 
 try:
     from benchmarks.references import chain_groups, chained_groups, gated_assignment

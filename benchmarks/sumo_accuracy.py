@@ -37,7 +37,7 @@ from roadlink.association import associate
 from roadlink.association.associators import ASSOCIATORS
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.association.detections import CLUTTER, Detections
-from roadlink.association.metrics import score_grouping
+from roadlink.association.scores import score_grouping
 from roadlink.simulation.sumo import (
     SUMO_SCENARIOS,
     Bottleneck,

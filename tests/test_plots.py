@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from roadlink.association import associate
-from roadlink.association.metrics import wrongly_grouped
 from roadlink.association.result import build_result
+from roadlink.association.scores import wrongly_grouped
 from roadlink.plots import DPI, FIGURE_SIZE, LEGEND_LIMIT, PLOT_KINDS, plot_figure, render_plot
 from roadlink.simulation import preset, simulate
 

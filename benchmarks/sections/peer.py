@@ -15,7 +15,7 @@ from benchmarks.methods import STONESOUP_GNN, grouping_method, stonesoup_availab
 from benchmarks.report import Column, Sample, Section, Table
 from benchmarks.sections.associators import ScalingPlan, measure_scaling
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
-from roadlink.association.metrics import score_grouping
+from roadlink.association.scores import score_grouping
 from roadlink.simulation import preset, simulate
 
 NAME = "peer"

@@ -30,8 +30,8 @@ from matplotlib.lines import Line2D
 
 from roadlink.association.backprojection import backproject_times
 from roadlink.association.localisation import target_tracks
-from roadlink.association.metrics import wrongly_grouped
 from roadlink.association.result import AssociationResult
+from roadlink.association.scores import wrongly_grouped
 
 PlotKind = Literal["time-space", "backprojected"]
 PlotFormat = Literal["png", "svg"]

@@ -20,8 +20,8 @@ from roadlink.api.jobresults import JobResultCache, render_elsewhere
 from roadlink.association import associate
 from roadlink.association.csvio import read_detections_csv
 from roadlink.association.localisation import positions_at, target_trajectory
-from roadlink.association.metrics import wrongly_grouped
 from roadlink.association.result import AssociationResult
+from roadlink.association.scores import wrongly_grouped
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory
 from roadlink.queue.worker import WORKER_NICENESS, Worker

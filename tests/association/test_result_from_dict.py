@@ -7,8 +7,8 @@ import json
 import numpy as np
 
 from roadlink.association import associate
-from roadlink.association.metrics import wrongly_grouped
 from roadlink.association.result import result_from_dict
+from roadlink.association.scores import wrongly_grouped
 from roadlink.simulation import preset, simulate
 
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from benchmarks.references import chain_groups, fifo_groups
 from roadlink.association.detections import Detections
-from roadlink.association.metrics import score_grouping
+from roadlink.association.scores import score_grouping
 from roadlink.simulation import preset, simulate
 
 

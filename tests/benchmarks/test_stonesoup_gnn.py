@@ -6,7 +6,7 @@ import pytest
 pytest.importorskip("stonesoup", reason="Stone Soup (the bench extra) is absent")
 
 from benchmarks.stonesoup_gnn import sensor_scans, track_groups
-from roadlink.association.metrics import score_grouping
+from roadlink.association.scores import score_grouping
 from roadlink.simulation import preset, simulate
 
 

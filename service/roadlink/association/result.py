@@ -15,7 +15,7 @@ import numpy as np
 from roadlink.association.backprojection import backproject_times
 from roadlink.association.csvio import spreadsheet_safe
 from roadlink.association.detections import Detections, FloatArray, IntArray
-from roadlink.association.metrics import Metrics, score_grouping
+from roadlink.association.scores import Metrics, score_grouping
 
 
 @dataclass(frozen=True, eq=False)

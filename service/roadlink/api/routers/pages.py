@@ -35,7 +35,7 @@ from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem
 from roadlink.api.jobresults import CachedResult, JobResultCache, job_result
 from roadlink.api.pagelinks import token_key
-from roadlink.association.metrics import wrongly_grouped
+from roadlink.association.scores import wrongly_grouped
 from roadlink.db import repository
 from roadlink.db.json_columns import BatchSelection, Selection
 from roadlink.db.models import ApiKey, JobState

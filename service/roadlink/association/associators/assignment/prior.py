@@ -220,7 +220,8 @@ class CandidatePairs:
 
 def bin_counts(values: FloatArray) -> FloatArray:
     """How many values fall in each of PRIOR_BINS (the last bin closed), as `np.histogram`
-    counts them, without its sort: the bins are even."""
+    counts them but for a value on an edge, which rounding may put in either bin; without its
+    sort, since the bins are even."""
     n_bins = PRIOR_BINS.size - 1
     inside = values[(values >= PRIOR_BINS[0]) & (values <= PRIOR_BINS[-1])]
     index = np.minimum(((inside - PRIOR_BINS[0]) / PRIOR_BIN).astype(np.int64), n_bins - 1)

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from sklearn.metrics import adjusted_rand_score
 
-from roadlink.association.metrics import score_grouping
+from roadlink.association.scores import score_grouping
 
 
 def labels(*values):
