@@ -28,6 +28,7 @@ from roadlink.db.apikeys import create_api_key
 from roadlink.db.engine import make_engine, make_session_factory, transaction
 from roadlink.db.migrate import upgrade_to_head
 from roadlink.db.models import ApiKeyScope
+from tests.helpers import detection_rows
 
 READY_TIMEOUT_SECONDS = 90.0
 REQUEST_TIMEOUT_SECONDS = 300.0
@@ -146,19 +147,7 @@ def create_deployment(client: httpx.Client, name: str = "bench") -> str:
 
 def json_batch(detections: Detections, associate: dict[str, Any] | None = None) -> dict[str, Any]:
     """A JSON batch body (BatchCreate in openapi/openapi.json) holding `detections`."""
-    d = detections
-    rows = [
-        {
-            "position": float(d.position[i]),
-            "velocity": float(d.velocity[i]),
-            "timestamp": float(d.timestamp[i]),
-            "sensor_id": d.sensor_id[i],
-            "detection_id": d.detection_id[i],
-            "target": d.target[i],
-        }
-        for i in range(len(d))
-    ]
-    body: dict[str, Any] = {"detections": rows}
+    body: dict[str, Any] = {"detections": detection_rows(detections)}
     if associate is not None:
         body["associate"] = associate
     return body

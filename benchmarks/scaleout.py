@@ -24,7 +24,6 @@ import json
 import multiprocessing
 import multiprocessing.process
 import os
-import socket
 import statistics
 import sys
 import tempfile
@@ -36,7 +35,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import func, select, text
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
@@ -49,20 +48,11 @@ from roadlink.queue import enqueue_job
 from roadlink.queue.worker import run_worker_process
 from roadlink.settings import Settings
 from roadlink.simulation import preset, simulate
+from tests.databases import create_postgres_database, drop_postgres_database, postgres_answers
 
-POSTGRES_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 RESULTS = Path(__file__).resolve().parent / "results" / "scaleout.json"
 WORKER_COUNTS = (1, 2, 4)
 ROUNDS = 3
-
-
-def postgres_answers() -> bool:
-    """True when something listens on the PostgreSQL port."""
-    try:
-        with socket.create_connection(("127.0.0.1", 5432), timeout=0.5):
-            return True
-    except OSError:
-        return False
 
 
 @contextmanager
@@ -74,18 +64,12 @@ def fresh_database(backend: str) -> Iterator[str]:
             upgrade_to_head(url)
             yield url
         return
-    name = f"roadlink_bench_{uuid.uuid4().hex[:12]}"
-    admin = make_engine(POSTGRES_ADMIN_URL, isolation_level="AUTOCOMMIT")
-    with admin.connect() as connection:
-        connection.execute(text(f'CREATE DATABASE "{name}"'))
-    url = POSTGRES_ADMIN_URL.rsplit("/", 1)[0] + "/" + name
+    url = create_postgres_database()
     try:
         upgrade_to_head(url)
         yield url
     finally:
-        with admin.connect() as connection:
-            connection.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
-        admin.dispose()
+        drop_postgres_database(url)
 
 
 @contextmanager

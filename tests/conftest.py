@@ -4,6 +4,7 @@ each test run creates and drops its own uniquely named database there."""
 
 from __future__ import annotations
 
+import threading
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -124,6 +125,16 @@ def worker(settings: Settings, engine: Engine) -> Iterator[Worker]:
     worker = Worker(settings, engine=engine)
     yield worker
     worker.close()
+
+
+@pytest.fixture
+def running_worker(worker: Worker) -> Iterator[Worker]:
+    """The worker draining the queue in a thread, for the length of the test."""
+    thread = threading.Thread(target=worker.run)
+    thread.start()
+    yield worker
+    worker.stopping.set()
+    thread.join(10)
 
 
 @pytest.fixture

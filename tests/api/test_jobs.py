@@ -6,8 +6,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import threading
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -20,16 +18,6 @@ from roadlink.association.detections import Detections
 from roadlink.cli import app as cli
 from roadlink.queue.worker import Worker
 from tests.helpers import assert_problem, detection_rows
-
-
-@pytest.fixture
-def running_worker(worker: Worker) -> Iterator[Worker]:
-    """A worker draining the queue in the background of the test."""
-    thread = threading.Thread(target=worker.run)
-    thread.start()
-    yield worker
-    worker.stopping.set()
-    thread.join(10)
 
 
 def _post_csv(client: TestClient, deployment_id: str, text: str, **params: str) -> dict[str, Any]:

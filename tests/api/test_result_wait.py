@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -25,15 +24,6 @@ def notifications_only(monkeypatch: pytest.MonkeyPatch) -> None:
     for name in ("WAIT_FIRST_POLL_SECONDS", "WAIT_MAX_POLL_SECONDS", "WAIT_LISTENING_POLL_SECONDS"):
         monkeypatch.setattr(waiting, name, NO_POLLING_SECONDS)
     monkeypatch.setitem(ASSOCIATORS, SleepingAssociator.name, SleepingAssociator)
-
-
-@pytest.fixture
-def running_worker(worker: Worker) -> Iterator[Worker]:
-    thread = threading.Thread(target=worker.run)
-    thread.start()
-    yield worker
-    worker.stopping.set()
-    thread.join(10)
 
 
 def _post(client: TestClient, deployment: dict[str, Any], paper_csv: str, **params: str) -> Any:

@@ -105,13 +105,20 @@ def test_serve_stops_its_workers_with_it(tmp_path: Path, sig: signal.Signals) ->
                 return False
 
         _wait_for(ready, "the server did not become ready")
-        tree = _wait_for_workers(process, 2)
-        process.send_signal(sig)
-        process.wait(DEADLINE_SECONDS)
-        _wait_for(lambda: not _alive(tree), f"left running after {sig.name}: {_alive(tree)}")
+        _signal_and_see_every_worker_stop(process, sig)
     finally:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
+
+
+def _signal_and_see_every_worker_stop(
+    process: subprocess.Popen[bytes], sig: signal.Signals
+) -> None:
+    """Once `process` has its two workers, send it `sig`; it and every descendant must stop."""
+    tree = _wait_for_workers(process, 2)
+    process.send_signal(sig)
+    process.wait(DEADLINE_SECONDS)
+    _wait_for(lambda: not _alive(tree), f"left running after {sig.name}: {_alive(tree)}")
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
@@ -125,10 +132,7 @@ def test_worker_stops_its_workers_with_it(tmp_path: Path, sig: signal.Signals) -
     )
     process, _ = _start(["worker"], tmp_path)
     try:
-        tree = _wait_for_workers(process, 2)
-        process.send_signal(sig)
-        process.wait(DEADLINE_SECONDS)
-        _wait_for(lambda: not _alive(tree), f"left running after {sig.name}: {_alive(tree)}")
+        _signal_and_see_every_worker_stop(process, sig)
     finally:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)

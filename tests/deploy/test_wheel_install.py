@@ -36,6 +36,7 @@ from tests.deploy.deploy_files import (
     commands_in_help,
     read_dockerfile,
 )
+from tests.helpers import detection_rows
 
 pytestmark = pytest.mark.slow
 
@@ -273,17 +274,7 @@ def test_migrate_serve_and_work_against_postgres(clean_install, request, tmp_pat
         assert httpx.get(f"{base}/readyz", timeout=5).status_code == 200
 
         detections = simulate(preset("small"), seed=11).detections
-        rows = [
-            {
-                "position": float(detections.position[i]),
-                "velocity": float(detections.velocity[i]),
-                "timestamp": float(detections.timestamp[i]),
-                "sensor_id": detections.sensor_id[i],
-                "detection_id": detections.detection_id[i],
-                "target": detections.target[i],
-            }
-            for i in range(len(detections))
-        ]
+        rows = detection_rows(detections)
         with httpx.Client(
             base_url=base, headers={"Authorization": f"Bearer {key}"}, timeout=30
         ) as client:

@@ -16,6 +16,12 @@ from roadlink.cli import app
 from roadlink.plots import PLOT_FORMATS, PLOT_KINDS, render_plot
 from roadlink.simulation import PRESETS, preset, simulate
 
+# The options every command that associates takes.
+AssociatorOption = Annotated[str, typer.Option(help=f"One of: {', '.join(ASSOCIATORS)}.")]
+ParamOption = Annotated[
+    list[str] | None, typer.Option("--param", help="Associator parameter key=value (repeat).")
+]
+
 
 def fail(message: str) -> typer.Exit:
     """Print an error a person can act on, and exit with status 2 (bad input)."""
@@ -110,12 +116,8 @@ def write_simulated(detections: Detections, output: Path, *, unlabelled: bool) -
 @app.command("associate")
 def associate_command(
     file: Annotated[Path, typer.Argument(help="Detection CSV ('-' = stdin).")],
-    associator: Annotated[
-        str, typer.Option(help=f"One of: {', '.join(ASSOCIATORS)}.")
-    ] = DEFAULT_ASSOCIATOR,
-    param: Annotated[
-        list[str] | None, typer.Option("--param", help="Associator parameter key=value (repeat).")
-    ] = None,
+    associator: AssociatorOption = DEFAULT_ASSOCIATOR,
+    param: ParamOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the result JSON.")] = False,
     as_csv: Annotated[
         bool, typer.Option("--csv", help="Print the target x sensor matrix (the paper's X'').")

@@ -12,7 +12,7 @@ from typing import Annotated, Any
 
 import typer
 
-from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR
+from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.association.localisation import (
     positions_at,
     segment_stats,
@@ -21,7 +21,7 @@ from roadlink.association.localisation import (
     target_trajectory,
 )
 from roadlink.cli import app
-from roadlink.cli.analysis import associate_file, fail
+from roadlink.cli.analysis import AssociatorOption, ParamOption, associate_file, fail
 
 
 @app.command("locate")
@@ -42,12 +42,8 @@ def locate_command(
         bool,
         typer.Option("--segments", help="Travel time and mean speed between consecutive sensors."),
     ] = False,
-    associator: Annotated[
-        str, typer.Option(help=f"One of: {', '.join(ASSOCIATORS)}.")
-    ] = DEFAULT_ASSOCIATOR,
-    param: Annotated[
-        list[str] | None, typer.Option("--param", help="Associator parameter key=value (repeat).")
-    ] = None,
+    associator: AssociatorOption = DEFAULT_ASSOCIATOR,
+    param: ParamOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
 ) -> None:
     """Associate the detections, then localise the targets by cubic Hermite interpolation.
