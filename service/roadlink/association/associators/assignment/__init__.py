@@ -36,6 +36,9 @@ loop (`associator`) runs them:
   leaving their detections apart, are false alarms (-1), unless the batch's time window cut
   them (a vehicle that passed the first sensor in the batch's last seconds is seen once, and is
   a target).
+- `confidence`: every link's approximate probability of being right, judged against its rivals
+  at its sensor boundary (in the last re-pairing sweep, `matching.chosen_marginals`), and
+  `min_confidence`'s cut of the weaker links into targets of their own.
 """
 
 from roadlink.association.associators.assignment.associator import AssignmentAssociator
