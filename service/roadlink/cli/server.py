@@ -68,7 +68,7 @@ class WorkerPool:
                         "worker %s exited (%s); starting another", process.pid, process.exitcode
                     )
                     replacement = _spawn.Process(
-                        target=run_worker_process, args=(self.settings, True)
+                        target=run_worker_process, args=(self.settings, os.getpid())
                     )
                     replacement.start()
                     self.processes[k] = replacement
@@ -148,15 +148,18 @@ def serve_command(
     # or draw hold the GIL in turns of this length, so a shorter turn keeps the loop prompt.
     sys.setswitchinterval(API_SWITCH_INTERVAL_SECONDS)
     pool = WorkerPool(settings, settings.workers)
-    pool.start()
-    log.info("started %d worker process(es) on %s", settings.workers, _safe_url(settings))
-    api = create_app(settings)
-    # Everything loaded so far (the libraries, the app) lives as long as the process: frozen out
-    # of the collector's sight, a full collection no longer walks it, which stalled every request
-    # for 100-370 ms at a time (measured with benchmarks/soak.py).
-    gc.collect()
-    gc.freeze()
+    # From the first worker's start on, a signal must reach `pool.stop()`: a Ctrl-C that came
+    # between the start and the `try` left this process waiting at exit for workers that do not
+    # stop while it lives.
     try:
+        pool.start()
+        log.info("started %d worker process(es) on %s", settings.workers, _safe_url(settings))
+        api = create_app(settings)
+        # Everything loaded so far (the libraries, the app) lives as long as the process: frozen
+        # out of the collector's sight, a full collection no longer walks it, which stalled
+        # every request for 100-370 ms at a time (measured with benchmarks/soak.py).
+        gc.collect()
+        gc.freeze()
         uvicorn.run(
             api,
             host=settings.host,
@@ -193,8 +196,8 @@ def worker_command(
     )
     _exit_on_sigterm()
     pool = WorkerPool(settings, workers)
-    pool.start()
-    try:
+    try:  # from the first worker's start on, as in `serve`
+        pool.start()
         pool.join()
     except (KeyboardInterrupt, SystemExit):
         pass
