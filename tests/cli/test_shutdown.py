@@ -14,6 +14,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from roadlink.queue.worker import PARENT_CHECK_SECONDS
 from tests.live_server import free_port, sqlite_env
 
 pytestmark = pytest.mark.slow
@@ -149,3 +150,30 @@ def test_workers_stop_by_themselves_when_serve_is_killed_outright(tmp_path: Path
     finally:
         for pid in _alive(tree):
             os.kill(pid, signal.SIGKILL)
+
+
+def test_a_worker_that_dies_is_replaced_by_one_that_stays(tmp_path: Path) -> None:
+    subprocess.run(
+        [sys.executable, "-m", "roadlink.cli", "migrate"],
+        cwd=tmp_path,
+        env={**os.environ, **sqlite_env(tmp_path)},
+        check=True,
+        capture_output=True,
+    )
+    process, _ = _start(["worker"], tmp_path)
+    try:
+        first = _workers(_wait_for_workers(process, 2))
+        os.kill(min(first), signal.SIGKILL)
+
+        def replaced() -> set[int]:
+            return _workers(_children(process.pid)) - first
+
+        _wait_for(lambda: bool(replaced()), "no worker took the killed one's place")
+        replacement = replaced()
+        # Staying is the behaviour under test: a replacement told the wrong parent pid took
+        # itself for an orphan at its first check (every PARENT_CHECK_SECONDS) and stopped, and
+        # was replaced again, once a second.
+        time.sleep(5 * PARENT_CHECK_SECONDS)
+        assert _alive(replacement) == replacement
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
