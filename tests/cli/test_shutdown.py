@@ -122,8 +122,8 @@ def _signal_and_see_every_worker_stop(
     _wait_for(lambda: not _alive(tree), f"left running after {sig.name}: {_alive(tree)}")
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_worker_stops_its_workers_with_it(tmp_path: Path, sig: signal.Signals) -> None:
+def _start_worker(tmp_path: Path) -> subprocess.Popen[bytes]:
+    """`roadlink worker` with two workers, on a migrated SQLite database in tmp_path."""
     subprocess.run(
         [sys.executable, "-m", "roadlink.cli", "migrate"],
         cwd=tmp_path,
@@ -131,7 +131,12 @@ def test_worker_stops_its_workers_with_it(tmp_path: Path, sig: signal.Signals) -
         check=True,
         capture_output=True,
     )
-    process, _ = _start(["worker"], tmp_path)
+    return _start(["worker"], tmp_path)[0]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_worker_stops_its_workers_with_it(tmp_path: Path, sig: signal.Signals) -> None:
+    process = _start_worker(tmp_path)
     try:
         _signal_and_see_every_worker_stop(process, sig)
     finally:
@@ -153,14 +158,7 @@ def test_workers_stop_by_themselves_when_serve_is_killed_outright(tmp_path: Path
 
 
 def test_a_worker_that_dies_is_replaced_by_one_that_stays(tmp_path: Path) -> None:
-    subprocess.run(
-        [sys.executable, "-m", "roadlink.cli", "migrate"],
-        cwd=tmp_path,
-        env={**os.environ, **sqlite_env(tmp_path)},
-        check=True,
-        capture_output=True,
-    )
-    process, _ = _start(["worker"], tmp_path)
+    process = _start_worker(tmp_path)
     try:
         first = _workers(_wait_for_workers(process, 2))
         os.kill(min(first), signal.SIGKILL)
