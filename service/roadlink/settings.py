@@ -73,6 +73,14 @@ class Settings(BaseSettings):
     max_wait_seconds: float = Field(
         default=60.0, ge=0, description="Longest `?wait=` a result request may ask for."
     )
+    keep_alive_seconds: int = Field(
+        default=75,
+        ge=1,
+        description="How long the API keeps an idle HTTP connection open. Longer than the "
+        "idle expiry of clients' connection pools (httpx: 5 s) and of load balancers in front "
+        "(commonly 60 s): when both sides time out together, a request sent on a connection "
+        "the server is closing is lost.",
+    )
     log_level: str = Field(default="info", description="Log level of the API and the workers.")
     stall_log_ms: float = Field(
         default=100.0,

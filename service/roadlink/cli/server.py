@@ -165,7 +165,7 @@ def serve_command(
             host=settings.host,
             port=settings.port,
             log_level=settings.log_level,
-            # The body limit is enforced by the app; uvicorn's own keep-alive defaults suit.
+            timeout_keep_alive=settings.keep_alive_seconds,
         )
     finally:
         pool.stop()
