@@ -98,7 +98,7 @@ def travel_time_prior(s: Sensors, a: IntArray, q: int) -> float:
     if a.size < PRIOR_TEST_SAMPLE:
         # A handful of targets: no background to thin, no power for a test, and too few pairs
         # to move (`excess`): the background is a uniform arrival rate.
-        mode = pairs.excess_over_uniform(every)
+        mode = pairs.excess_over_uniform(every, pairs.log_ratios(every)[0])
         return mode.centre() if mode.excess.max() > 0 else 0.0
     # A driver often keeps its place among the speeds around it, so the pairs whose speeds,
     # relative to their sensors' typical speeds, agree hold most true pairs and few unrelated
@@ -174,18 +174,18 @@ class CandidatePairs:
         and nothing (-inf) when the two put the bump in different places. Neither model is
         right everywhere: a uniform rate sees biases in the waves of a queue and the end of a
         batch, moved pairs in a strictly periodic flow."""
-        uniform = self.excess_over_uniform(keep)
-        moved = self.excess(keep)
+        ratios = self.log_ratios(keep)
+        uniform = self.excess_over_uniform(keep, ratios[0])
+        moved = self.excess(*ratios)
         centre = moved.centre()
         if abs(uniform.centre() - centre) > PRIOR_PEAK_BINS * PRIOR_BIN:
             return centre, -np.inf
         return centre, min(uniform.significance(), moved.significance())
 
-    def excess_over_uniform(self, keep: BoolArray) -> BiasHistogram:
-        """Histogram of the kept pairs' log(observed / kinematic travel time) less a
-        background of unrelated pairs falling uniformly in time at q's rate, whose expected
-        number in a bin grows as e^value (thinned as the pairs are)."""
-        values = self.log_ratios(keep)[0]
+    def excess_over_uniform(self, keep: BoolArray, values: FloatArray) -> BiasHistogram:
+        """Histogram of the kept pairs' log(observed / kinematic travel time) (`values`, from
+        `log_ratios`) less a background of unrelated pairs falling uniformly in time at q's
+        rate, whose expected number in a bin grows as e^value (thinned as the pairs are)."""
         typical = travel_time(self.length, self.s.speed[self.a], self.typical_speed_b)
         # Thinned as the pairs are: the share kept of those ahead in time (the others are here
         # for `excess` alone).
@@ -194,9 +194,12 @@ class CandidatePairs:
         background = thinning * self.rate * float(typical.sum()) * np.diff(np.exp(PRIOR_BINS))
         return BiasHistogram.of(values, background)
 
-    def excess(self, keep: BoolArray) -> BiasHistogram:
-        """Histogram of log(observed / kinematic travel time) of the kept pairs less the
-        background of unrelated pairs.
+    def excess(
+        self, values: FloatArray, travel: FloatArray, kinematic: FloatArray
+    ) -> BiasHistogram:
+        """Histogram of log(observed / kinematic travel time) of the kept pairs (`values`, from
+        `log_ratios` with their `travel` and `kinematic` times) less the background of
+        unrelated pairs.
 
         The background is the same histogram with every pair's travel time moved, in evenly
         spaced steps, by PRIOR_SIDEBANDS typical kinematic travel times either way (never by
@@ -206,7 +209,6 @@ class CandidatePairs:
         stop where the batch ends. A uniform arrival rate, assumed instead, took the pairs of
         those shapes for biases (a stop-and-go segment got a travel time a tenth of the true
         one, and not one of its links was made)."""
-        values, travel, kinematic = self.log_ratios(keep)
         # Every pair but a stride's worth, past PRIOR_BACKGROUND_PAIRS: the background is smooth.
         stride = max(1, travel.size // PRIOR_BACKGROUND_PAIRS)
         band = np.linspace(*PRIOR_SIDEBANDS, PRIOR_SIDEBAND_STEPS) / PRIOR_SIDEBANDS[1]

@@ -53,6 +53,7 @@ def refine_boundaries(
     # Prefix sums (from the track's start to a detection), final once the sweep passes it.
     head_sum = np.where(in_track, u, 0.0)
     head_count = in_track.astype(np.float64)
+    gate = REFINE_GATE_FACTOR * params.gate_cost
     for k in range(1, n_sensors + 1):
         # Detections at sensor k - 1 got their final predecessor at the previous boundary.
         m = s.members(k - 1)
@@ -61,7 +62,6 @@ def refine_boundaries(
         head_count[m] = 1.0 + head_count[prv[m]]
         if k == n_sensors:
             break
-        gate = REFINE_GATE_FACTOR * params.gate_cost
         ends = ends_at_boundary(s, model, params, nxt, prv, in_track, k, gate)
         if ends is None:
             continue
