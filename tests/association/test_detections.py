@@ -106,3 +106,61 @@ def test_take_and_concatenate_keep_rows_together():
     assert joined.detection_id.tolist() == ["e", "a", "b"]
     with pytest.raises(DetectionError):
         concatenate([])
+
+
+def test_features_are_optional_per_detection():
+    d = make(
+        lane=[0, None, "2", ""],
+        length=[4.5, "", None, "12.0"],
+        vehicle_class=["car", None, " truck ", ""],
+    )
+    assert d.lane.tolist() == [0, -1, 2, -1]
+    assert d.has_lane.tolist() == [True, False, True, False]
+    assert d.length[[0, 3]].tolist() == [4.5, 12.0]
+    assert d.has_length.tolist() == [True, False, False, True]
+    assert d.vehicle_class.tolist() == ["car", None, "truck", None]
+    assert d.features == ("lane", "length", "vehicle_class")
+
+
+def test_without_feature_columns_nothing_is_reported():
+    d = make()
+    assert d.features == ()
+    assert d.lane.tolist() == [-1] * 4 and np.isnan(d.length).all()
+    assert d.vehicle_class.tolist() == [None] * 4
+
+
+@pytest.mark.parametrize(
+    ("column", "bad"),
+    [
+        ("lane", 0.5),
+        ("lane", -1),
+        ("lane", 256),
+        ("lane", "x"),
+        ("lane", True),
+        ("length", 0.0),
+        ("length", -4.0),
+        ("length", 1e3),
+        ("length", "nan"),
+        ("length", math.inf),
+        ("vehicle_class", "x" * 33),
+        ("vehicle_class", 5),
+        ("vehicle_class", "car\x00x"),
+    ],
+)
+def test_bad_features_name_row_and_field(column, bad):
+    good = {"lane": 1, "length": 4.0, "vehicle_class": "car"}[column]
+    with pytest.raises(DetectionError) as excinfo:
+        make(**{column: [good, good, bad, good]})
+    assert problems_of(excinfo) == [(3, column)]
+
+
+def test_features_follow_take_concatenate_and_label_removal():
+    d = make(lane=[0, 1, 2, 3], length=[4.0, 5.0, 6.0, 7.0], vehicle_class=["a", "b", "c", "d"])
+    taken = d.take([3, 1])
+    assert taken.lane.tolist() == [3, 1] and taken.length.tolist() == [7.0, 5.0]
+    assert taken.vehicle_class.tolist() == ["d", "b"]
+    joined = concatenate([taken, make()])
+    assert joined.lane.tolist() == [3, 1, -1, -1, -1, -1]
+    assert joined.features == ("lane", "length", "vehicle_class")
+    assert d.without_labels().vehicle_class.tolist() == ["a", "b", "c", "d"]
+    assert d.without_features().features == ()

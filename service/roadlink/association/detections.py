@@ -7,7 +7,7 @@ validation lives here and nowhere else: a `Detections` object is always valid.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -21,6 +21,16 @@ CLUTTER = "clutter"
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 ObjectArray = npt.NDArray[np.object_]
+
+NO_LANE = -1
+"""The `lane` of a detection whose detector did not report one (lanes are numbered from 0)."""
+
+# Lanes beyond this are a gateway's error, not a road (the widest motorways have a dozen or so).
+MAX_LANE = 255
+# A vehicle class is a short word from the deployment's own vocabulary ("car", "truck", "5").
+MAX_CLASS_CHARS = 32
+# No road vehicle (nor road train) is longer; a loop's length beyond it is a fault.
+MAX_LENGTH = 100.0
 
 # Beyond this magnitude, squares and sums of timestamps or positions lose all precision in float64
 # (and are certainly not real road data); rejecting them keeps every later computation finite.
@@ -68,6 +78,11 @@ class Detections:
 
     `target` holds the true label where known (``None`` = unlabelled, ``"clutter"`` = false alarm);
     it is used only for scoring and by supervised associators.
+
+    Three detector features are optional, per detection, since real detectors report more than
+    the paper's (position, velocity, timestamp) and not every sensor measures each: `lane` (from
+    0, `NO_LANE` where not reported), `length` (the vehicle's measured length in the position
+    unit, NaN where not measured) and `vehicle_class` (a short word, None where not reported).
     """
 
     position: FloatArray
@@ -76,6 +91,20 @@ class Detections:
     sensor_id: ObjectArray
     detection_id: ObjectArray
     target: ObjectArray
+    lane: IntArray = field(default=None)  # type: ignore[arg-type]
+    length: FloatArray = field(default=None)  # type: ignore[arg-type]
+    vehicle_class: ObjectArray = field(default=None)  # type: ignore[arg-type]
+
+    def __post_init__(self) -> None:
+        # Absent features are stored as "not reported" for every detection, so that every
+        # reader sees the same arrays whether or not a batch carried the columns.
+        n = self.position.size
+        if self.lane is None:
+            object.__setattr__(self, "lane", np.full(n, NO_LANE, dtype=np.int64))
+        if self.length is None:
+            object.__setattr__(self, "length", np.full(n, np.nan))
+        if self.vehicle_class is None:
+            object.__setattr__(self, "vehicle_class", np.full(n, None, dtype=object))
 
     @classmethod
     def from_columns(
@@ -86,14 +115,28 @@ class Detections:
         sensor_id: Sequence[str | None] | None = None,
         detection_id: Sequence[str | None] | None = None,
         target: Sequence[str | None] | None = None,
+        lane: RawColumn | None = None,
+        length: RawColumn | None = None,
+        vehicle_class: Sequence[str | None] | None = None,
     ) -> Detections:
         """Validate raw columns and build detections.
 
         Missing sensor ids are named after their position (``S1`` is the first sensor along the
-        road); missing detection ids are generated as ``d1, d2, ...`` in input order. Raises
-        `DetectionError` naming every offending row and field.
+        road); missing detection ids are generated as ``d1, d2, ...`` in input order. In the
+        feature columns (`lane`, `length`, `vehicle_class`) None or a blank means "not reported"
+        for that detection. Raises `DetectionError` naming every offending row and field.
         """
-        n = _common_length(position, velocity, timestamp, sensor_id, detection_id, target)
+        n = _common_length(
+            position,
+            velocity,
+            timestamp,
+            sensor_id,
+            detection_id,
+            target,
+            lane,
+            length,
+            vehicle_class,
+        )
         problems: list[Problem] = []
         pos = _float_column("position", position, problems)
         vel = _float_column("velocity", velocity, problems)
@@ -102,6 +145,9 @@ class Detections:
             problems.append(
                 Problem(int(row) + 1, "velocity", f"must be > 0, got {float(vel[row])}")
             )
+        lanes = _lane_column(n, lane, problems)
+        lengths = _length_column(n, length, problems)
+        classes = _class_column(n, vehicle_class, problems)
         if problems:
             raise DetectionError(problems)
         _check_travel_times(pos, vel, problems)
@@ -115,7 +161,7 @@ class Detections:
             raise DetectionError(problems)
         # One sensor's detections are valid (a gateway per sensor is common); association needs
         # two sensor positions, and `associate` says so.
-        return cls(pos, vel, ts, sensors, det_ids, labels)
+        return cls(pos, vel, ts, sensors, det_ids, labels, lanes, lengths, classes)
 
     def __len__(self) -> int:
         return int(self.position.size)
@@ -124,6 +170,31 @@ class Detections:
     def labelled(self) -> npt.NDArray[np.bool_]:
         """Mask of detections whose true target (or clutter) is known."""
         return np.array([t is not None for t in self.target], dtype=bool)
+
+    @property
+    def has_lane(self) -> npt.NDArray[np.bool_]:
+        """Mask of detections whose lane was reported."""
+        return self.lane != NO_LANE
+
+    @property
+    def has_length(self) -> npt.NDArray[np.bool_]:
+        """Mask of detections whose vehicle length was measured."""
+        return ~np.isnan(self.length)
+
+    @property
+    def has_vehicle_class(self) -> npt.NDArray[np.bool_]:
+        """Mask of detections whose vehicle class was reported."""
+        return np.array([c is not None for c in self.vehicle_class], dtype=bool)
+
+    @property
+    def features(self) -> tuple[str, ...]:
+        """The optional feature columns that at least one detection reports, in contract order."""
+        present = (
+            ("lane", self.has_lane),
+            ("length", self.has_length),
+            ("vehicle_class", self.has_vehicle_class),
+        )
+        return tuple(name for name, mask in present if bool(mask.any()))
 
     @property
     def reference_position(self) -> float:
@@ -138,37 +209,39 @@ class Detections:
     def take(self, index: npt.ArrayLike) -> Detections:
         """A subset (or reordering) of these detections; no re-validation needed."""
         idx = np.asarray(index)
-        return Detections(
-            self.position[idx],
-            self.velocity[idx],
-            self.timestamp[idx],
-            self.sensor_id[idx],
-            self.detection_id[idx],
-            self.target[idx],
-        )
+        return Detections(*(getattr(self, name)[idx] for name in COLUMNS))
 
     def without_labels(self) -> Detections:
         """The same detections with every label removed (what an unsupervised associator sees)."""
-        return Detections(
-            self.position,
-            self.velocity,
-            self.timestamp,
-            self.sensor_id,
-            self.detection_id,
-            np.full(len(self), None, dtype=object),
-        )
+        columns = {name: getattr(self, name) for name in COLUMNS}
+        columns["target"] = np.full(len(self), None, dtype=object)
+        return Detections(**columns)
+
+    def without_features(self) -> Detections:
+        """The same detections as the paper's detector would report them: no lane, length or
+        class (to measure what the features are worth)."""
+        return Detections(*(getattr(self, name) for name in COLUMNS[:6]))
+
+
+COLUMNS = (
+    "position",
+    "velocity",
+    "timestamp",
+    "sensor_id",
+    "detection_id",
+    "target",
+    "lane",
+    "length",
+    "vehicle_class",
+)
+"""Every column of `Detections`, in constructor order."""
 
 
 def concatenate(parts: Sequence[Detections]) -> Detections:
     """Join several detection sets (e.g. batches) into one, keeping their order."""
     if not parts:
         raise DetectionError([Problem(None, None, "no detections")])
-    return Detections(
-        *(
-            np.concatenate([getattr(p, name) for p in parts])
-            for name in ("position", "velocity", "timestamp", "sensor_id", "detection_id", "target")
-        )
-    )
+    return Detections(*(np.concatenate([getattr(p, name) for p in parts]) for name in COLUMNS))
 
 
 def _common_length(*columns: object) -> int:
@@ -279,6 +352,93 @@ def _text_column(n: int, given: Sequence[str | None] | None) -> ObjectArray:
             text = None if value is None else str(value).strip()
             out[i] = text or None
     return out
+
+
+def _lane_column(n: int, given: RawColumn | None, problems: list[Problem]) -> IntArray:
+    """Lanes as whole numbers from 0 to MAX_LANE; None or a blank is "not reported" (NO_LANE)."""
+    lanes = _optional_floats("lane", n, given, problems)
+    reported = ~np.isnan(lanes)
+    wrong = reported & ((lanes != np.round(lanes)) | (lanes < 0) | (lanes > MAX_LANE))
+    for row in np.flatnonzero(wrong)[:20]:
+        problems.append(
+            Problem(
+                int(row) + 1,
+                "lane",
+                f"must be a whole number from 0 to {MAX_LANE}, got {float(lanes[row]):g}",
+            )
+        )
+    out = np.full(n, NO_LANE, dtype=np.int64)
+    ok = reported & ~wrong
+    out[ok] = lanes[ok].astype(np.int64)
+    return out
+
+
+def _length_column(n: int, given: RawColumn | None, problems: list[Problem]) -> FloatArray:
+    """Vehicle lengths, > 0 and at most MAX_LENGTH; None or a blank is "not measured" (NaN)."""
+    lengths = _optional_floats("length", n, given, problems)
+    for row in np.flatnonzero(np.isfinite(lengths) & ((lengths <= 0) | (lengths > MAX_LENGTH)))[
+        :20
+    ]:
+        problems.append(
+            Problem(
+                int(row) + 1,
+                "length",
+                f"must be > 0 and at most {MAX_LENGTH:g}, got {float(lengths[row]):g}",
+            )
+        )
+    return lengths
+
+
+def _optional_floats(
+    name: str, n: int, given: RawColumn | None, problems: list[Problem]
+) -> FloatArray:
+    """A column of finite numbers in which None or a blank means "not reported" (NaN)."""
+    out = np.full(n, np.nan)
+    if given is None:
+        return out
+    if isinstance(given, np.ndarray) and given.dtype.kind == "f":
+        values: list[object] = [None if np.isnan(v) else v for v in given.tolist()]
+    else:
+        values = list(given)
+    reported = np.flatnonzero([not _is_blank(v) for v in values])
+    if reported.size:
+        found: list[Problem] = []
+        numbers = _float_column(name, [values[i] for i in reported], found)
+        # `_float_column` numbered the reported values alone; renumber its rows as the input's.
+        problems.extend(
+            Problem(None if p.row is None else int(reported[p.row - 1]) + 1, p.field, p.message)
+            for p in found
+        )
+        out[reported] = numbers
+    return out
+
+
+def _class_column(
+    n: int, given: Sequence[str | None] | None, problems: list[Problem]
+) -> ObjectArray:
+    """Vehicle classes: short words, None where blank."""
+    out = np.full(n, None, dtype=object)
+    if given is None:
+        return out
+    for i, value in enumerate(given):
+        if value is not None and not isinstance(value, str):
+            problems.append(Problem(i + 1, "vehicle_class", f"must be text, got {value!r}"))
+            continue
+        text = None if value is None else str(value).strip()
+        if text and (len(text) > MAX_CLASS_CHARS or not text.isprintable()):
+            problems.append(
+                Problem(
+                    i + 1,
+                    "vehicle_class",
+                    f"must be at most {MAX_CLASS_CHARS} printable characters, got {text[:40]!r}",
+                )
+            )
+        out[i] = text or None
+    return out
+
+
+def _is_blank(value: object) -> bool:
+    return value is None or (isinstance(value, str) and not value.strip())
 
 
 def _sensor_ids(
