@@ -73,6 +73,53 @@ def test_noise_is_multiplicative_on_speed_and_additive_on_time():
     assert np.std(out.time - clean.time) == pytest.approx(0.1, rel=0.05)
 
 
+def _with_features(passages: Passages) -> Passages:
+    n = passages.time.size
+    vehicle = passages.target % 3  # three kinds of vehicle, one lane each
+    return (
+        passages.replace(
+            lane=vehicle.astype(np.int64),
+            length=np.array([4.0, 8.0, 15.0])[vehicle],
+            vehicle_class=np.array(["car", "van", "truck"], dtype=object)[vehicle],
+        )
+        if n
+        else passages
+    )
+
+
+def test_length_noise_is_multiplicative_and_features_follow_their_passage():
+    clean = _with_features(_passages())
+    faults = DetectorFaults(length_noise=0.07, duplicate_probability=0.2, miss_probability=0.1)
+    out = apply_detector_faults(
+        clean, faults, np.random.default_rng(3), false_alarm_speeds=_constant(1.0), clutter=-1
+    )
+    true_length = np.array([4.0, 8.0, 15.0])[out.target % 3]
+    assert np.std(np.log(out.length / true_length)) == pytest.approx(0.07, rel=0.05)
+    assert np.array_equal(out.lane, out.target % 3)  # duplicates keep their passage's lane
+    assert np.array_equal(out.vehicle_class, np.array(["car", "van", "truck"])[out.target % 3])
+
+
+def test_false_alarms_read_features_their_sensor_reported_and_none_where_it_reported_none():
+    with_features = _with_features(_passages())
+    faults = DetectorFaults(false_alarm_rate=0.1)
+    out = apply_detector_faults(
+        with_features,
+        faults,
+        np.random.default_rng(4),
+        false_alarm_speeds=_constant(1.0),
+        clutter=-1,
+    )
+    alarms = out.target < 0
+    assert set(out.lane[alarms]) == {0, 1, 2}
+    assert set(out.length[alarms]) == {4.0, 8.0, 15.0}
+    assert set(out.vehicle_class[alarms]) == {"car", "van", "truck"}
+    plain = apply_detector_faults(
+        _passages(), faults, np.random.default_rng(4), false_alarm_speeds=_constant(1.0), clutter=-1
+    )
+    assert (plain.lane == -1).all() and np.isnan(plain.length).all()
+    assert set(plain.vehicle_class) == {None}
+
+
 def test_both_simulators_draw_their_faults_through_the_shared_model(monkeypatch):
     seen: list[DetectorFaults] = []
 

@@ -96,15 +96,7 @@ class Detections:
     vehicle_class: ObjectArray = field(default=None)  # type: ignore[arg-type]
 
     def __post_init__(self) -> None:
-        # Absent features are stored as "not reported" for every detection, so that every
-        # reader sees the same arrays whether or not a batch carried the columns.
-        n = self.position.size
-        if self.lane is None:
-            object.__setattr__(self, "lane", np.full(n, NO_LANE, dtype=np.int64))
-        if self.length is None:
-            object.__setattr__(self, "length", np.full(n, np.nan))
-        if self.vehicle_class is None:
-            object.__setattr__(self, "vehicle_class", np.full(n, None, dtype=object))
+        fill_unreported_features(self, self.position.size)
 
     @classmethod
     def from_columns(
@@ -221,6 +213,19 @@ class Detections:
         """The same detections as the paper's detector would report them: no lane, length or
         class (to measure what the features are worth)."""
         return Detections(*(getattr(self, name) for name in COLUMNS[:6]))
+
+
+def fill_unreported_features(columns: object, n: int) -> None:
+    """Set each feature column that is None on the frozen `columns` to "not reported" for all `n`
+    rows, so that every reader sees the same arrays whether or not the input carried them."""
+    unreported = {
+        "lane": lambda: np.full(n, NO_LANE, dtype=np.int64),
+        "length": lambda: np.full(n, np.nan),
+        "vehicle_class": lambda: np.full(n, None, dtype=object),
+    }
+    for name, make in unreported.items():
+        if getattr(columns, name) is None:
+            object.__setattr__(columns, name, make())
 
 
 COLUMNS = (

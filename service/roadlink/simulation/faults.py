@@ -1,6 +1,10 @@
 """What real detectors get wrong, one model for every simulator: misses, duplicates, false alarms
 and measurement noise, applied to the passages a simulator recorded.
 
+A passage may carry the detector features (lane, the vehicle's length and class); a simulator
+that does not record them leaves them "not reported", and then no random number is drawn for
+them, so that traffic without features is exactly what it was before features existed.
+
 Both simulators (the paper's `generate` and SUMO's `sumo`) record true passages and then call
 `apply_detector_faults`, so a fault means the same thing, drawn in the same order, whichever
 traffic it is applied to. What differs between them is only what a false alarm's speed looks like:
@@ -10,12 +14,18 @@ the caller says, with a `FalseAlarmSpeeds` function.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from roadlink.association.detections import FloatArray
+from roadlink.association.detections import (
+    NO_LANE,
+    FloatArray,
+    IntArray,
+    ObjectArray,
+    fill_unreported_features,
+)
 
 # A duplicate is the same passage reported again up to this long after it (s), its speed read
 # again with this relative error: a detector that re-triggers on one vehicle.
@@ -47,28 +57,43 @@ class DetectorFaults(BaseModel):
     timestamp_noise: float = Field(
         default=0.0, ge=0, description="Timestamp measurement error (std, seconds)."
     )
+    length_noise: float = Field(
+        default=0.0,
+        ge=0,
+        le=1,
+        description="Vehicle length measurement error (std, share of length); loops: 0.05-0.10.",
+    )
 
 
 @dataclass(frozen=True, eq=False)
 class Passages:
     """Parallel columns, one row a report: which sensor (an index), when, how fast, and whose
-    (the label; the caller's `clutter` label for a false alarm)."""
+    (the label; the caller's `clutter` label for a false alarm); then, where the simulator records
+    them, the lane (`NO_LANE` if not), the vehicle's length (NaN if not) and class (None if not)."""
 
     sensor: np.ndarray
     time: FloatArray
     speed: FloatArray
     target: np.ndarray
+    lane: IntArray = field(default=None)  # type: ignore[arg-type]
+    length: FloatArray = field(default=None)  # type: ignore[arg-type]
+    vehicle_class: ObjectArray = field(default=None)  # type: ignore[arg-type]
+
+    def __post_init__(self) -> None:
+        fill_unreported_features(self, self.time.size)
 
     def take(self, rows: np.ndarray) -> Passages:
-        return Passages(self.sensor[rows], self.time[rows], self.speed[rows], self.target[rows])
+        return Passages(*(getattr(self, f.name)[rows] for f in fields(self)))
+
+    def replace(self, **columns: np.ndarray) -> Passages:
+        return Passages(
+            **{f.name: columns.get(f.name, getattr(self, f.name)) for f in fields(self)}
+        )
 
     @staticmethod
     def concatenate(parts: list[Passages]) -> Passages:
         return Passages(
-            np.concatenate([p.sensor for p in parts]),
-            np.concatenate([p.time for p in parts]),
-            np.concatenate([p.speed for p in parts]),
-            np.concatenate([p.target for p in parts]),
+            *(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Passages))
         )
 
 
@@ -99,23 +124,23 @@ def apply_detector_faults(
 def _measurement_noise(
     passages: Passages, faults: DetectorFaults, rng: np.random.Generator
 ) -> Passages:
-    speed, time = passages.speed, passages.time
+    speed, time, length = passages.speed, passages.time, passages.length
     if faults.velocity_noise:
         speed = speed * np.exp(faults.velocity_noise * rng.standard_normal(speed.size))
     if faults.timestamp_noise:
         time = time + faults.timestamp_noise * rng.standard_normal(time.size)
-    return Passages(passages.sensor, time, speed, passages.target)
+    if faults.length_noise and not np.isnan(length).all():
+        length = length * np.exp(faults.length_noise * rng.standard_normal(length.size))
+    return passages.replace(time=time, speed=speed, length=length)
 
 
 def _duplicate(passages: Passages, faults: DetectorFaults, rng: np.random.Generator) -> Passages:
     """A sensor reporting one passage twice: the copy a little later, its speed a little off."""
     twice = np.flatnonzero(rng.random(passages.time.size) < faults.duplicate_probability)
     copies = passages.take(twice)
-    copies = Passages(
-        copies.sensor,
-        copies.time + rng.uniform(0.0, DUPLICATE_DELAY, size=twice.size),
-        copies.speed * (1.0 + DUPLICATE_SPEED_ERROR * rng.standard_normal(twice.size)),
-        copies.target,
+    copies = copies.replace(
+        time=copies.time + rng.uniform(0.0, DUPLICATE_DELAY, size=twice.size),
+        speed=copies.speed * (1.0 + DUPLICATE_SPEED_ERROR * rng.standard_normal(twice.size)),
     )
     return Passages.concatenate([passages, copies])
 
@@ -128,7 +153,8 @@ def _false_alarms(
     clutter: object,
     margin: float,
 ) -> Passages:
-    """Reports of no target, at each sensor in proportion to the passages it reported."""
+    """Reports of no target, at each sensor in proportion to the passages it reported; where
+    passages carry features, a false alarm's are drawn from those its sensor reported."""
     if not faults.false_alarm_rate or passages.time.size == 0:
         return passages
     parts = [passages]
@@ -139,5 +165,24 @@ def _false_alarms(
         time = rng.uniform(seen.min() - margin, seen.max() + margin, size=count)
         label = np.full(count, clutter, dtype=passages.target.dtype)
         sensor = np.full(count, k, dtype=passages.sensor.dtype)
-        parts.append(Passages(sensor, time, speeds(int(k), count, passages.speed[at], rng), label))
+        speed = speeds(int(k), count, passages.speed[at], rng)
+        features = _false_alarm_features(passages.take(np.flatnonzero(at)), count, rng)
+        parts.append(Passages(sensor, time, speed, label, **features))
     return Passages.concatenate(parts)
+
+
+def _false_alarm_features(
+    seen: Passages, count: int, rng: np.random.Generator
+) -> dict[str, np.ndarray]:
+    """Lane, length and class of `count` false alarms: each one a sensor reported for a real
+    passage (a loop that triggers falsely still reads some lane and length); none drawn where
+    the sensor reported none."""
+    features: dict[str, np.ndarray] = {}
+    for name, reported in (
+        ("lane", seen.lane != NO_LANE),
+        ("length", ~np.isnan(seen.length)),
+        ("vehicle_class", np.array([c is not None for c in seen.vehicle_class], dtype=bool)),
+    ):
+        if reported.any():
+            features[name] = rng.choice(getattr(seen, name)[reported], size=count)
+    return features
