@@ -80,3 +80,37 @@ def test_an_unknown_column_is_refused_by_name_as_json_refuses_an_unknown_field()
     text = "position,velocity,timestamp,velocty\n0,30,1,31\n"
     with pytest.raises(DetectionError, match="field 'velocty': unknown column; the known columns"):
         read_detections_csv(text)
+
+
+def test_features_round_trip_with_empty_cells_where_a_detection_reports_none():
+    text = (
+        "position,velocity,timestamp,lane,length,vehicle_class\n"
+        "0,20,1,0,4.5,car\n"
+        "100,20,6,,,\n"
+        "0,25,2,2,,=truck\n"
+    )
+    d = read_detections_csv(text)
+    assert d.lane.tolist() == [0, -1, 2]
+    assert d.length[0] == 4.5 and d.has_length.tolist() == [True, False, False]
+    assert d.vehicle_class.tolist() == ["car", None, "=truck"]
+    written = write_detections_csv(d)
+    assert written.splitlines()[0].endswith(",target,lane,length,vehicle_class")
+    assert "'=truck" in written  # a class is a text cell, escaped for spreadsheets
+    back = read_detections_csv(written)
+    assert back.lane.tolist() == d.lane.tolist()
+    assert back.vehicle_class.tolist() == d.vehicle_class.tolist()
+    assert back.length[0] == 4.5 and back.has_length.tolist() == d.has_length.tolist()
+
+
+def test_without_features_the_csv_has_no_feature_columns():
+    d = simulate(preset("small"), seed=1).detections
+    assert write_detections_csv(d).splitlines()[0] == (
+        "position,velocity,timestamp,sensor_id,detection_id,target"
+    )
+
+
+def test_a_bad_feature_cell_names_row_and_field():
+    text = "position,velocity,timestamp,lane,length\n0,20,1,1,4\n100,20,6,1.5,0\n"
+    with pytest.raises(DetectionError) as excinfo:
+        read_detections_csv(text)
+    assert [(p.row, p.field) for p in excinfo.value.problems] == [(2, "lane"), (2, "length")]

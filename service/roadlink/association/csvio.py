@@ -1,5 +1,6 @@
 """The detection CSV: a header row; `position`, `velocity`, `timestamp` required; `sensor_id`,
-`detection_id`, `target` optional (an empty `target` cell means unlabelled).
+`detection_id`, `target` optional (an empty `target` cell means unlabelled), and so are the
+detector features `lane`, `length` and `vehicle_class` (an empty cell: not reported).
 
 Every CSV roadlink writes may be opened in a spreadsheet, which runs a cell that starts with `=`,
 `+`, `-`, `@`, a tab or a carriage return as a formula (CSV injection). Text cells (ids and
@@ -15,13 +16,14 @@ import io
 
 import numpy as np
 
-from roadlink.association.detections import DetectionError, Detections, Problem
+from roadlink.association.detections import NO_LANE, DetectionError, Detections, Problem
 
 # What a spreadsheet takes for the start of a formula.
 FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
 
 REQUIRED_COLUMNS = ("position", "velocity", "timestamp")
-OPTIONAL_COLUMNS = ("sensor_id", "detection_id", "target")
+FEATURE_COLUMNS = ("lane", "length", "vehicle_class")
+OPTIONAL_COLUMNS = ("sensor_id", "detection_id", "target", *FEATURE_COLUMNS)
 # As a JSON batch refuses an unknown field, a CSV refuses an unknown column: a misspelt
 # `sensorid` must not be dropped in silence.
 KNOWN = (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS)
@@ -48,6 +50,9 @@ def read_detections_csv(text: str) -> Detections:
         sensor_id=columns["sensor_id"],
         detection_id=columns["detection_id"],
         target=columns["target"],
+        lane=columns["lane"],
+        length=columns["length"],
+        vehicle_class=columns["vehicle_class"],
     )
 
 
@@ -125,11 +130,20 @@ _ESCAPED = (*FORMULA_STARTS, "'")
 
 
 def write_detections_csv(detections: Detections) -> str:
-    """Detections as CSV, every column written (an unlabelled target as an empty cell)."""
+    """Detections as CSV (an unlabelled target as an empty cell). A feature column is written
+    when some detection reports it, with empty cells where others do not, so that detections
+    without features are written exactly as before features existed."""
+    d = detections
+    features = d.features
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
-    writer.writerow([*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS])
-    d = detections
+    writer.writerow([*REQUIRED_COLUMNS, "sensor_id", "detection_id", "target", *features])
+    cells = {
+        "lane": lambda i: "" if d.lane[i] == NO_LANE else str(int(d.lane[i])),
+        "length": lambda i: "" if np.isnan(d.length[i]) else repr(float(d.length[i])),
+        "vehicle_class": lambda i: _text_cell(d.vehicle_class[i]),
+    }
+    feature_cells = [cells[name] for name in features]
     for i in range(len(d)):
         writer.writerow(
             [
@@ -138,7 +152,12 @@ def write_detections_csv(detections: Detections) -> str:
                 repr(float(d.timestamp[i])),
                 spreadsheet_safe(d.sensor_id[i]),
                 spreadsheet_safe(d.detection_id[i]),
-                "" if d.target[i] is None else spreadsheet_safe(d.target[i]),
+                _text_cell(d.target[i]),
+                *(cell(i) for cell in feature_cells),
             ]
         )
     return out.getvalue()
+
+
+def _text_cell(text: object) -> str:
+    return "" if text is None else spreadsheet_safe(str(text))
