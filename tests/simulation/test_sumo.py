@@ -92,6 +92,41 @@ def test_a_vehicle_entering_a_loop_at_standstill_reports_a_small_positive_speed(
     assert d.velocity.tolist() == [sumo.MIN_REPORTED_SPEED]
 
 
+def test_with_features_each_detection_carries_its_loop_lane_and_the_vehicle_length_and_class():
+    xml = (DATA / "instant_loops.xml").read_bytes()
+    plain = parse_detector_output(xml, {"S3": 700.0, "S4": 950.0})
+    assert plain.features == ()
+    d = parse_detector_output(xml, {"S3": 700.0, "S4": 950.0}, features=True)
+    assert d.timestamp.tolist() == plain.timestamp.tolist()
+    # truck.4 is first seen by lane 1's loop at S4 (it changes lane over the sensor).
+    rows = list(zip(d.target, d.lane.tolist(), d.length.tolist(), d.vehicle_class, strict=True))
+    assert [r for r in rows if r[0] == "truck.4"] == [
+        ("truck.4", 0, 12.0, "truck"),
+        ("truck.4", 1, 12.0, "truck"),
+    ]
+    assert set(d.vehicle_class) == {"car", "truck"}
+
+
+def test_with_features_each_class_is_a_distribution_of_spread_lengths():
+    scenario = sumo_scenario("sumo-freeflow", features=True, vehicles=sumo.mix(car=0.9, van=0.1))
+    routes = routes_xml(scenario)
+    assert routes.count("<vTypeDistribution") == 2
+    assert '<flow id="car" type="car"' in routes  # labels stay car.N
+    car_lengths = sorted(
+        float(t.split('length="')[1].split('"')[0]) for t in routes.splitlines() if 'id="car_' in t
+    )
+    assert len(car_lengths) == sumo.files.LENGTH_TYPES
+    assert 3.6 < car_lengths[0] < 3.7 and 5.3 < car_lengths[-1] < 5.4
+    assert "vTypeDistribution" not in routes_xml(sumo_scenario("sumo-freeflow"))
+
+
+def test_length_noise_needs_features(tmp_path):
+    result = CliRunner().invoke(
+        app, ["simulate-sumo", "--length-noise", "0.05", "-o", str(tmp_path / "out.csv")]
+    )
+    assert result.exit_code == 2 and "--length-noise needs --features" in result.output
+
+
 def test_a_bottleneck_cuts_the_road_into_three_edges():
     scenario = SUMO_SCENARIOS["sumo-bottleneck"]
     segments = road_segments(scenario)
@@ -189,6 +224,29 @@ def test_sumo_end_to_end_gives_labelled_reproducible_tracks(tmp_path):
     np.testing.assert_array_equal(again.timestamp, d.timestamp)
     other = sumo.run_sumo(scenario, seed=4)
     assert len(other) != len(d) or not np.array_equal(other.timestamp, d.timestamp)
+
+
+@needs_sumo
+def test_sumo_with_features_reports_lanes_and_noisy_lengths_that_follow_the_vehicle(tmp_path):
+    out = tmp_path / "features.csv"
+    result = CliRunner().invoke(
+        app,
+        [
+            *("simulate-sumo", "--scenario", "sumo-freeflow", "--duration", "60"),
+            *("--features", "--length-noise", "0.05", "-o", str(out)),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    d = read_detections_csv(out.read_text())
+    assert d.features == ("lane", "length", "vehicle_class")
+    assert set(d.lane) <= {0, 1, 2} and len(set(d.lane)) == 3
+    assert d.has_length.all() and set(d.vehicle_class) == {"car", "truck"}
+    cars, trucks = d.length[d.vehicle_class == "car"], d.length[d.vehicle_class == "truck"]
+    assert 3.0 < np.median(cars) < 5.5 < 7.0 < np.median(trucks) < 19.0
+    # One vehicle's lengths agree within the 5 % noise; different vehicles' differ.
+    labels = d.target.astype(str)
+    spread = [np.std(np.log(d.length[labels == v])) for v in np.unique(labels)]
+    assert 0.03 < np.median(spread) < 0.07
 
 
 @needs_sumo

@@ -360,7 +360,10 @@ def _text_column(n: int, given: Sequence[str | None] | None) -> ObjectArray:
 
 
 def _lane_column(n: int, given: RawColumn | None, problems: list[Problem]) -> IntArray:
-    """Lanes as whole numbers from 0 to MAX_LANE; None or a blank is "not reported" (NO_LANE)."""
+    """Lanes as whole numbers from 0 to MAX_LANE; None or a blank is "not reported" (NO_LANE),
+    and so is NO_LANE in an integer array (as `Detections.lane` holds them)."""
+    if isinstance(given, np.ndarray) and given.dtype.kind in "iu":
+        given = np.where(given == NO_LANE, np.nan, given)
     lanes = _optional_floats("lane", n, given, problems)
     reported = ~np.isnan(lanes)
     wrong = reported & ((lanes != np.round(lanes)) | (lanes < 0) | (lanes > MAX_LANE))

@@ -35,6 +35,20 @@ def simulate_sumo_command(
         Path | None,
         typer.Option(help="Keep SUMO's network, route, detector and output files here."),
     ] = None,
+    features: Annotated[
+        bool,
+        typer.Option(
+            help="Detectors also report lane, vehicle length and class (lane, length and "
+            "vehicle_class columns); lengths then spread within each vehicle class."
+        ),
+    ] = False,
+    length_noise: Annotated[
+        float | None,
+        typer.Option(
+            help="Length measurement error with --features (std, share of length; loops: "
+            "0.05-0.10). Default: the scenario's (exact for the named scenarios)."
+        ),
+    ] = None,
     unlabelled: Annotated[bool, typer.Option(help="Leave the target column empty.")] = False,
 ) -> None:
     """Simulate motorway traffic with Eclipse SUMO and write what its loop detectors saw as CSV.
@@ -46,6 +60,14 @@ def simulate_sumo_command(
         overrides["duration"] = duration
     if demand is not None:
         overrides["demand"] = demand
+    if features:
+        overrides["features"] = True
+    if length_noise is not None:
+        if not features:
+            raise fail("--length-noise needs --features: without it no length is reported")
+        base = SUMO_SCENARIOS.get(scenario)
+        faults = base.faults.model_dump() if base is not None else {}
+        overrides["faults"] = {**faults, "length_noise": length_noise}
     try:
         config = sumo_scenario(scenario, **overrides)
     except ValueError as exc:

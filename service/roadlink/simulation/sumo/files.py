@@ -8,12 +8,22 @@ import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 
 from roadlink.association.detections import Detections
-from roadlink.simulation.sumo.scenarios import SumoScenario, road_segments, sensor_ids
+from roadlink.simulation.sumo.scenarios import (
+    SumoScenario,
+    VehicleClass,
+    road_segments,
+    sensor_ids,
+)
 
 # A loop reports the speed of a vehicle crawling over it as small but positive (its speed comes
 # from the time the vehicle occupies it); SUMO may report exactly 0 for a vehicle that stopped
 # within the step it entered, which no real detector reports and `Detections` rejects.
 MIN_REPORTED_SPEED = 0.1
+
+# A class with a length range is simulated as this many vehicle types of evenly spread lengths,
+# each as likely (SUMO's lengths are per type): steps of 0.1 m for cars, well below what a
+# loop's 5-10 % length error can tell apart.
+LENGTH_TYPES = 20
 
 # Detectors stay this far from an edge's ends, where SUMO's junction lanes begin.
 EDGE_MARGIN = 0.5
@@ -33,20 +43,13 @@ def network_xml(scenario: SumoScenario) -> tuple[str, str]:
 
 
 def routes_xml(scenario: SumoScenario) -> str:
-    """Vehicle types and one Poisson flow per type over the whole road."""
+    """Vehicle types and one Poisson flow per vehicle class over the whole road."""
     segments = road_segments(scenario)
     total = sum(v.share for v in scenario.vehicles)
     end = scenario.warmup + scenario.duration
     lines = ["<routes>"]
     for v in scenario.vehicles:
-        # Desired-speed factors are normal, cut at +-3 std (and kept positive).
-        dev = v.speed_deviation
-        low, high = max(0.2, v.speed_factor - 3 * dev), v.speed_factor + 3 * dev
-        lines.append(
-            f'  <vType id="{v.name}" vClass="{v.vclass}" length="{v.length}" '
-            f'maxSpeed="{v.max_speed}" accel="{v.accel}" decel="{v.decel}" sigma="{v.sigma}" '
-            f'speedFactor="normc({v.speed_factor},{dev},{low:.3f},{high:.3f})"/>'
-        )
+        lines.extend(_vehicle_types(v, spread=scenario.features))
     lines.append(f'  <route id="road" edges="{" ".join(s.edge for s in segments)}"/>')
     for v in scenario.vehicles:
         rate = scenario.demand * v.share / total / 3600.0  # vehicles per second
@@ -56,6 +59,32 @@ def routes_xml(scenario: SumoScenario) -> str:
         )
     lines.append("</routes>")
     return "\n".join(lines) + "\n"
+
+
+def _vehicle_types(v: VehicleClass, spread: bool) -> list[str]:
+    """The class as one vType, or, with `spread` and a length range, as a distribution (named
+    after the class, so flows and labels stay as they are) of types ``car_0``, ``car_1``, ...
+    of evenly spread lengths."""
+    if not spread or v.length_range is None:
+        return [_vehicle_type(v, v.name, v.length)]
+    low, high = v.length_range
+    step = (high - low) / LENGTH_TYPES
+    types = [
+        "  " + _vehicle_type(v, f"{v.name}_{k}", low + (k + 0.5) * step)
+        for k in range(LENGTH_TYPES)
+    ]
+    return [f'  <vTypeDistribution id="{v.name}">', *types, "  </vTypeDistribution>"]
+
+
+def _vehicle_type(v: VehicleClass, type_id: str, length: float) -> str:
+    # Desired-speed factors are normal, cut at +-3 std (and kept positive).
+    dev = v.speed_deviation
+    low, high = max(0.2, v.speed_factor - 3 * dev), v.speed_factor + 3 * dev
+    return (
+        f'  <vType id="{type_id}" vClass="{v.vclass}" length="{length:g}" '
+        f'maxSpeed="{v.max_speed}" accel="{v.accel}" decel="{v.decel}" sigma="{v.sigma}" '
+        f'speedFactor="normc({v.speed_factor},{dev},{low:.3f},{high:.3f})"/>'
+    )
 
 
 def lane_starts(net_xml: str) -> dict[str, tuple[float, float]]:
@@ -98,6 +127,7 @@ def parse_detector_output(
     xml: str | bytes,
     sensors: Mapping[str, float],
     window: tuple[float, float] | None = None,
+    features: bool = False,
 ) -> Detections:
     """SUMO instantInductionLoop output as labelled detections.
 
@@ -105,10 +135,11 @@ def parse_detector_output(
     vehicle's first ``enter`` at a sensor is its detection (a vehicle changing lanes over a sensor
     can enter a second lane's loop; one sensor is all its lanes, so that is not a new passage).
     Only entries with ``window[0] <= time < window[1]`` are kept, their timestamps counted from
-    ``window[0]``. The target label is SUMO's vehicle id.
+    ``window[0]``. The target label is SUMO's vehicle id. With `features`, each detection carries
+    its loop's lane, the vehicle's true length and its class (its vType's name up to ``_``).
     """
     start, end = window if window is not None else (-math.inf, math.inf)
-    first: dict[tuple[str, str], tuple[float, float]] = {}
+    first: dict[tuple[str, str], ET.Element] = {}
     for event in ET.fromstring(xml).iter("instantOut"):
         if event.get("state") != "enter":
             continue
@@ -119,15 +150,19 @@ def parse_detector_output(
         if not start <= time < end:
             continue
         key = (sensor, event.attrib["vehID"])
-        if key not in first or time < first[key][0]:
-            first[key] = (time, float(event.attrib["speed"]))
-    order = sorted(first, key=lambda k: (sensors[k[0]], first[k][0]))
+        if key not in first or time < float(first[key].attrib["time"]):
+            first[key] = event
+    order = sorted(first, key=lambda k: (sensors[k[0]], float(first[k].attrib["time"])))
+    events = [first[k] for k in order]
     origin = start if math.isfinite(start) else 0.0
     return Detections.from_columns(
         [sensors[s] for s, _ in order],
-        [max(first[k][1], MIN_REPORTED_SPEED) for k in order],
+        [max(float(e.attrib["speed"]), MIN_REPORTED_SPEED) for e in events],
         # SUMO writes times to 0.01 s; rounding drops the float noise of the subtraction.
-        [round(first[k][0] - origin, 6) for k in order],
+        [round(float(e.attrib["time"]) - origin, 6) for e in events],
         sensor_id=[s for s, _ in order],
         target=[vehicle for _, vehicle in order],
+        lane=[int(e.attrib["id"].rsplit(":", 1)[1]) for e in events] if features else None,
+        length=[float(e.attrib["length"]) for e in events] if features else None,
+        vehicle_class=[e.attrib["type"].split("_")[0] for e in events] if features else None,
     )

@@ -108,6 +108,7 @@ def _run_in(home: Path, scenario: SumoScenario, seed: int, work: Path) -> Detect
         (work / "detections.xml").read_bytes(),
         sensor_ids(scenario),
         (scenario.warmup, scenario.warmup + scenario.duration),
+        features=scenario.features,
     )
     if scenario.faults != DetectorFaults():
         # Its own stream, so faults never change what SUMO simulated.
@@ -144,7 +145,15 @@ def with_detector_faults(
         )
 
     passages = apply_detector_faults(
-        Passages(sensor, detections.timestamp, detections.velocity, detections.target),
+        Passages(
+            sensor,
+            detections.timestamp,
+            detections.velocity,
+            detections.target,
+            lane=detections.lane,
+            length=detections.length,
+            vehicle_class=detections.vehicle_class,
+        ),
         faults,
         rng,
         false_alarm_speeds=speeds,
@@ -158,4 +167,7 @@ def with_detector_faults(
         passages.time,
         sensor_id=[sensor_id[int(k)] for k in passages.sensor],
         target=passages.target.tolist(),
+        lane=passages.lane,
+        length=passages.length,
+        vehicle_class=passages.vehicle_class.tolist(),
     )

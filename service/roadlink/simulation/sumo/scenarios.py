@@ -21,6 +21,11 @@ class VehicleClass(BaseModel):
     share: float = Field(gt=0, le=1, description="Share of the demand.")
     vclass: str = Field(default="passenger", description="SUMO vehicle class.")
     length: float = Field(default=4.5, gt=0, description="Length (m).")
+    length_range: tuple[float, float] | None = Field(
+        default=None,
+        description="Where the scenario's detectors report features: the vehicles' lengths "
+        "spread evenly over this range (m), instead of all being `length`.",
+    )
     max_speed: float = Field(default=50.0, gt=0, description="Top speed of the vehicle (m/s).")
     speed_factor: float = Field(
         default=1.0, gt=0, description="Mean desired speed as a share of the speed limit."
@@ -35,12 +40,26 @@ class VehicleClass(BaseModel):
     )
 
 
-CAR = VehicleClass(name="car", share=1.0, max_speed=50.0, speed_deviation=0.12)
+CAR = VehicleClass(
+    name="car", share=1.0, length_range=(3.6, 5.4), max_speed=50.0, speed_deviation=0.12
+)
+VAN = VehicleClass(
+    name="van",
+    share=1.0,
+    vclass="delivery",
+    length=6.0,
+    length_range=(5.0, 7.0),
+    max_speed=44.0,
+    speed_factor=0.95,
+    speed_deviation=0.1,
+    accel=2.0,
+)
 TRUCK = VehicleClass(
     name="truck",
     share=1.0,
     vclass="truck",
     length=12.0,
+    length_range=(8.0, 18.0),
     # Speed limiters hold trucks near 90 km/h, each a little differently.
     max_speed=26.4,
     speed_factor=0.75,
@@ -51,8 +70,8 @@ TRUCK = VehicleClass(
 
 
 def mix(**shares: float) -> list[VehicleClass]:
-    """The standard car and truck classes in the given shares, e.g. ``mix(car=0.9, truck=0.1)``."""
-    known = {"car": CAR, "truck": TRUCK}
+    """The standard classes (car, van, truck) in the given shares: ``mix(car=0.9, truck=0.1)``."""
+    known = {"car": CAR, "van": VAN, "truck": TRUCK}
     return [known[name].model_copy(update={"share": share}) for name, share in shares.items()]
 
 
@@ -104,6 +123,12 @@ class SumoScenario(BaseModel):
     )
     step_length: float = Field(default=0.5, gt=0, le=1, description="SUMO time step (s).")
     faults: DetectorFaults = Field(default_factory=DetectorFaults)
+    features: bool = Field(
+        default=False,
+        description="Detectors report each vehicle's lane (SUMO's lane index, 0 = rightmost), "
+        "length (measured with `faults.length_noise`) and class (its vehicle class's name); "
+        "vehicles' lengths then spread over their class's `length_range`.",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> SumoScenario:
