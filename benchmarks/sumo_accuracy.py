@@ -21,6 +21,12 @@ demands and faults, kept apart from the scenarios that the associator's defaults
 measured on, to check that a change of the defaults holds on traffic it was not tuned on.
 `--speed-noise` runs the variants in SPEED_NOISE: free-flowing and dense traffic seen by loops
 that measure speed with an error of 3, 6 or 10 %, and no other fault.
+
+`--features` runs the same scenarios with detectors that also report lane, vehicle length
+(measured with a `--length-noise` error, 7 % by default) and class, each vehicle class's lengths
+spread over its range (the scenario's `features` option), and scores every associator twice on
+each case: with the features, and on the same detections without them (column `... -f`).
+Export feature cases to a directory of their own: their names are the scenarios'.
 """
 
 from __future__ import annotations
@@ -145,16 +151,38 @@ SCENARIO_GROUPS = {"main": SUMO_SCENARIOS, "validation": VALIDATION, "speed-nois
 EVERY_SCENARIO = {name: case for group in SCENARIO_GROUPS.values() for name, case in group.items()}
 
 
+# A loop's length error: 5-10 % is typical (it is read from occupancy time x speed).
+LENGTH_NOISE = 0.07
+
+
+def with_features(scenario: SumoScenario, length_noise: float) -> SumoScenario:
+    """The scenario seen by detectors that report lane, length and class."""
+    faults = scenario.faults.model_copy(update={"length_noise": length_noise})
+    return SumoScenario.model_validate(
+        {**scenario.model_dump(), "features": True, "faults": faults.model_dump()}
+    )
+
+
 def case_file(directory: Path, scenario: str, seed: int) -> Path:
     """Where a simulated case is exported to, and read back from."""
     return directory / f"{scenario}-seed{seed}.csv"
 
 
-def load_case(scenario: str, seed: int, data: Path | None, export: Path | None) -> Detections:
-    """The detections of one case: from `data` when given, else simulated by SUMO."""
+def load_case(
+    scenario: str,
+    seed: int,
+    data: Path | None,
+    export: Path | None,
+    length_noise: float | None = None,
+) -> Detections:
+    """The detections of one case: from `data` when given, else simulated by SUMO (with
+    detector features when `length_noise` is given)."""
     if data is not None:
         return read_detections_csv(case_file(data, scenario, seed).read_text())
-    detections = run_sumo(EVERY_SCENARIO[scenario], seed=seed)
+    simulated = EVERY_SCENARIO[scenario]
+    if length_noise is not None:
+        simulated = with_features(simulated, length_noise)
+    detections = run_sumo(simulated, seed=seed)
     if export is not None:
         export.mkdir(parents=True, exist_ok=True)
         case_file(export, scenario, seed).write_text(write_detections_csv(detections))
@@ -229,6 +257,12 @@ def main() -> None:
         help=f"Associators, or the naive references {', '.join(REFERENCES)} "
         "(benchmarks/references.py).",
     )
+    parser.add_argument(
+        "--features",
+        action="store_true",
+        help="Detectors report lane, length and class; score with and without them.",
+    )
+    parser.add_argument("--length-noise", type=float, default=LENGTH_NOISE)
     parser.add_argument("--data", type=Path, help="Read the cases' CSVs from here (no SUMO).")
     parser.add_argument("--export", type=Path, help="Also write the simulated cases' CSVs here.")
     parser.add_argument(
@@ -239,33 +273,41 @@ def main() -> None:
     group = "validation" if args.validation else "speed-noise" if args.speed_noise else "main"
     known = SCENARIO_GROUPS[group]
     args.scenarios = args.scenarios or list(known)
+    # With --features, each associator is scored on the same cases without them too ("-f").
+    columns = [(name, False) for name in args.associators]
+    if args.features:
+        columns = [(name, stripped) for name in args.associators for stripped in (False, True)]
+    titles = [name + (" -f" if stripped else "") for name, stripped in columns]
 
     rows: list[dict[str, object]] = []
     sizes: dict[str, list[dict[str, float]]] = {}
     print(f"Accuracy over seeds 0-{args.seeds - 1}: mean ± std (worst)\n")
-    print("| scenario | " + " | ".join(args.associators) + " |")
-    print("|---" * (len(args.associators) + 1) + "|")
+    print("| scenario | " + " | ".join(titles) + " |")
+    print("|---" * (len(titles) + 1) + "|")
+    noise = args.length_noise if args.features else None
     for scenario in args.scenarios:
-        scores: dict[str, list[dict[str, float] | None]] = {n: [] for n in args.associators}
-        seconds: dict[str, list[float]] = {name: [] for name in args.associators}
+        scores: dict[str, list[dict[str, float] | None]] = {t: [] for t in titles}
+        seconds: dict[str, list[float]] = {t: [] for t in titles}
         for seed in range(args.seeds):
-            detections = load_case(scenario, seed, args.data, args.export)
+            detections = load_case(scenario, seed, args.data, args.export, noise)
             sizes.setdefault(scenario, []).append(describe(detections))
-            for name in args.associators:
-                metrics, spent = timed_accuracy(detections, name, args.timeout)
-                scores[name].append(metrics)
-                seconds[name].append(spent)
+            for (name, stripped), title in zip(columns, titles, strict=True):
+                case = detections.without_features() if stripped else detections
+                metrics, spent = timed_accuracy(case, name, args.timeout)
+                scores[title].append(metrics)
+                seconds[title].append(spent)
         cells = []
-        for name in args.associators:
+        for (name, stripped), title in zip(columns, titles, strict=True):
             rows.append(
                 {
                     "scenario": scenario,
                     "associator": name,
-                    "metrics": scores[name],
-                    "seconds": seconds[name],
+                    "features": bool(detections.features) and not stripped,
+                    "metrics": scores[title],
+                    "seconds": seconds[title],
                 }
             )
-            cells.append(cell(scores[name]))
+            cells.append(cell(scores[title]))
         print(f"| {scenario} | " + " | ".join(cells) + " |", flush=True)
 
     print("\n| scenario | detections | vehicles | seen at every sensor |\n|---|---|---|---|")
@@ -280,6 +322,7 @@ def main() -> None:
         json.dumps(
             {
                 "seeds": args.seeds,
+                "length_noise": noise,
                 "timeout_seconds": args.timeout,
                 "scenarios": {
                     name: {"description": known[name].description, "cases": sizes[name]}
