@@ -12,7 +12,11 @@ from roadlink.association.associators.assignment.params import (
     AssignmentParams,
 )
 from roadlink.association.associators.assignment.sensors import Sensors
-from roadlink.association.associators.assignment.tracks import BoolArray
+from roadlink.association.associators.assignment.tracks import (
+    BoolArray,
+    detection_level,
+    level_terms,
+)
 from roadlink.association.detections import FloatArray, IntArray
 
 
@@ -63,14 +67,26 @@ def track_evidence(
     new_track = np.r_[True, ids[1:] != ids[:-1]]
     start = np.flatnonzero(new_track)
     run = np.cumsum(new_track) - 1
-    cumulative = np.cumsum(s.relative_speed[chain])
-    offset = np.where(start > 0, cumulative[np.maximum(start - 1, 0)], 0.0)[run]
+
+    def prefix_sums(values: FloatArray) -> FloatArray:
+        """Sums of `values` (in chain order) from each track's start up to each detection."""
+        cumulative = np.cumsum(values)
+        return cumulative - np.where(start > 0, cumulative[np.maximum(start - 1, 0)], 0.0)[run]
+
     position = np.arange(chain.size) - start[run] + 1.0
-    prefix_mean = (cumulative - offset) / position
+    prefix_mean = prefix_sums(s.relative_speed[chain]) / position
     before = Level(prefix_mean[linked], position[linked])
-    after = Level(s.relative_speed[b], np.ones(b.size))
+    after = detection_level(s, b)
+    terms = level_terms(s)
+    if len(terms) > 1:
+        value, weight = terms[1]
+        count = prefix_sums(weight[chain])
+        before.length_count = count[linked]
+        before.length_mean = prefix_sums((value * weight)[chain])[linked] / np.maximum(
+            before.length_count, 1.0
+        )
     pairs = Pairs.between(s, model, params, a, b)
-    saving = params.gate_cost - link_cost(params, model, pairs, before, after)
+    saving = params.gate_cost - link_cost(params, model, pairs, before, after, s)
     evidence = np.bincount(ids[linked], weights=np.maximum(saving, 0.0), minlength=ids.max() + 1)
     return np.asarray(evidence, dtype=np.float64)
 

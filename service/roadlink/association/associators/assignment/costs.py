@@ -6,22 +6,32 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from roadlink.association.associators.assignment.features import feature_cost
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import AssignmentParams
+from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.detections import FloatArray
 
 
 @dataclass
 class Level:
-    """Mean relative speed of some track pieces, and how many detections each mean is over."""
+    """Mean relative speed of some track pieces, and how many detections each mean is over; where
+    detectors measure length, the pieces' mean log length and number of length readings."""
 
     mean: FloatArray
     count: FloatArray
+    length_mean: FloatArray | None = None
+    length_count: FloatArray | None = None
 
 
 def link_cost(
-    params: AssignmentParams, model: SegmentModel, pairs: Pairs, before: Level, after: Level
+    params: AssignmentParams,
+    model: SegmentModel,
+    pairs: Pairs,
+    before: Level,
+    after: Level,
+    s: Sensors,
 ) -> FloatArray:
     """Cost of every candidate link a -> b: a sum of -2 log densities of standardised residuals
     (squared in the core, flatter in the learned heavy tails: `model.Tails`).
@@ -38,9 +48,23 @@ def link_cost(
         1.0 / np.minimum(before.count, memory) + 1.0 / np.minimum(after.count, memory)
     )
     r_level = (after.mean - before.mean) / level_spread
-    return (
+    cost = (
         model.time_tails.cost(pairs.r_time)
         + params.velocity_change_weight * model.speed_tails.cost(r_speed)
         + params.preferred_speed_weight * model.level_tails.cost(r_level)
         + params.miss_cost * (pairs.span - 1)
     )
+    if s.features is None or model.features is None or params.feature_weight == 0:
+        return cost
+    lengths = (
+        _or_zeros(before.length_mean, pairs.a.size),
+        _or_zeros(before.length_count, pairs.a.size),
+        _or_zeros(after.length_mean, pairs.a.size),
+        _or_zeros(after.length_count, pairs.a.size),
+    )
+    evidence = feature_cost(s.features, model.features, s.sensor, pairs.a, pairs.b, lengths)
+    return cost + params.feature_weight * evidence
+
+
+def _or_zeros(values: FloatArray | None, n: int) -> FloatArray:
+    return np.zeros(n) if values is None else values

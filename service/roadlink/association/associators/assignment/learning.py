@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from roadlink.association.associators.assignment.features import learn_features
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel, Tails
 from roadlink.association.associators.assignment.params import (
@@ -56,6 +57,8 @@ def learn_segments(
     np.maximum(model.time_spread, MIN_RELATIVE_SPREAD, out=model.time_spread)
     np.maximum(model.speed_spread, MIN_RELATIVE_SPREAD, out=model.speed_spread)
     learn_tails(s, params, model, links, deviation)
+    if s.features is not None and prior.features is not None:
+        model.features = learn_features(s.features, s.sensor, prior.features, links)
     return model
 
 

@@ -107,14 +107,16 @@ def _match_block(left: Nodes, right: Nodes, cost: Costs, alone: float) -> tuple[
     # cols: real rights [0, n_r), dummies of lefts [n_r, n_r + n_l)
     rows = np.concatenate([li, np.arange(n_l), n_l + np.arange(n_r), n_l + ri])
     cols = np.concatenate([ri, n_r + np.arange(n_l), np.arange(n_r), n_r + li])
-    # All weights shifted by +1: LAPJVsp needs non-zero weights, a full matching has a fixed
-    # number of edges, so the shift changes nothing.
+    # All weights shifted to at least +1: LAPJVsp needs non-zero weights, a full matching has a
+    # fixed number of edges, so the shift changes nothing. (Costs are negative only where
+    # detector features make a link more likely than not.)
     weights = np.concatenate([cost, np.full(n_l, alone), np.full(n_r, alone), np.zeros(ri.size)])
     # ... and rounded to whole multiples of 2^-10, so that every sum LAPJVsp forms is exact: with
     # arbitrary floats its rounding errors can make it cycle forever (seen on a dense block of
     # SUMO traffic; tests/data/lapjvsp_cycle.npz). The rounding changes costs by < 0.001.
     weights = np.round(weights * COST_QUANTUM_INVERSE) / COST_QUANTUM_INVERSE
-    graph = csr_matrix((weights + 1.0, (rows, cols)), shape=(n_l + n_r, n_r + n_l))
+    shift = 1.0 - min(0.0, float(weights.min(initial=0.0)))
+    graph = csr_matrix((weights + shift, (rows, cols)), shape=(n_l + n_r, n_r + n_l))
     graph.sum_duplicates()
     row, col = min_weight_full_bipartite_matching(graph)
     real = (row < n_l) & (col < n_r)

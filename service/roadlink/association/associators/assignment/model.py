@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from roadlink.association.associators.assignment.features import FeatureModel
 from roadlink.association.associators.assignment.params import (
     TAIL_EM_ITERATIONS,
     TAIL_EM_TOLERANCE,
@@ -87,7 +88,8 @@ class SegmentModel:
     kinematic prediction); where vehicles brake or accelerate at one place, near one end, that
     end's speed says less about the travel time and the learned skew moves away from it. The
     spread of a track's speed about its own pace is one number for the road, as are the tails
-    of the three residuals.
+    of the three residuals. Where detectors report lane, length or class, `features` is what
+    they say (`features.FeatureModel`).
     """
 
     log_bias: FloatArray
@@ -99,6 +101,7 @@ class SegmentModel:
     time_tails: Tails
     speed_tails: Tails
     level_tails: Tails
+    features: FeatureModel | None = None
 
     @property
     def max_span(self) -> int:
@@ -116,4 +119,5 @@ class SegmentModel:
             self.time_tails,
             self.speed_tails,
             self.level_tails,
+            None if self.features is None else self.features.copy(),
         )

@@ -134,6 +134,14 @@ class AssignmentParams(AssociatorParams):
         "when targets overtake, and the travel-time term already uses both speeds. Higher "
         "trusts speed continuity more.",
     )
+    feature_weight: float = Field(
+        default=1.0,
+        ge=0,
+        le=10,
+        description="Weight of the detector features (lane, length, class) where detections "
+        "report them: each adds the log likelihood ratio of 'same vehicle' against 'another "
+        "vehicle at that sensor', learned from the data. 0 ignores them.",
+    )
     preferred_speed_weight: float = Field(
         default=0.35,
         ge=0,

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from roadlink.association.associators.assignment.features import prior_features
 from roadlink.association.associators.assignment.model import SegmentModel, Tails
 from roadlink.association.associators.assignment.params import (
     PRIOR_AGREEMENT,
@@ -84,6 +85,7 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
         Tails(*PRIOR_TAILS),
         Tails(*PRIOR_TAILS),
         Tails(*PRIOR_TAILS),
+        None if s.features is None else prior_features(s.features, s.sensor, n_sensors, max_span),
     )
 
 

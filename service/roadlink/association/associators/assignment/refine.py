@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from roadlink.association.associators.assignment.costs import Level, link_cost
@@ -15,6 +17,7 @@ from roadlink.association.associators.assignment.params import (
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.associators.assignment.tracks import (
     BoolArray,
+    level_terms,
     successors,
     tracks_from_links,
 )
@@ -46,27 +49,21 @@ def refine_boundaries(
     nxt, prv = successors(s, track)
     in_track = track >= 0
     n_sensors = s.positions.size
-    u = s.relative_speed
-    # A suffix only involves links after its head, which this sweep has not reached yet, so its
-    # sums stay valid.
-    tail_sum, tail_count = suffix_sums(s, nxt, in_track)
-    # Prefix sums (from the track's start to a detection), final once the sweep passes it.
-    head_sum = np.where(in_track, u, 0.0)
-    head_count = in_track.astype(np.float64)
+    levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
     gate = REFINE_GATE_FACTOR * params.gate_cost
     for k in range(1, n_sensors + 1):
         # Detections at sensor k - 1 got their final predecessor at the previous boundary.
         m = s.members(k - 1)
         m = m[prv[m] >= 0]
-        head_sum[m] = u[m] + head_sum[prv[m]]
-        head_count[m] = 1.0 + head_count[prv[m]]
+        for level in levels:
+            level.extend_heads(m, prv[m])
         if k == n_sensors:
             break
         ends = ends_at_boundary(s, model, params, nxt, prv, in_track, k, gate)
         if ends is None:
             continue
         tails, pairs = ends
-        cost = boundary_cost(params, model, pairs, (head_sum, head_count), (tail_sum, tail_count))
+        cost = boundary_cost(params, model, pairs, levels, s)
         if relink:
             # Splitting a track costs more here than declining a link did: a track the forward
             # pass built is evidence in itself, so re-pairing must pay for itself.
@@ -83,32 +80,58 @@ def refine_boundaries(
     return tracks_from_links(s, prv, in_track)
 
 
+@dataclass
+class Summed:
+    """Sums of a value and of its weight over every detection's prefix (from its track's start to
+    it) and suffix (from it to its track's end)."""
+
+    value: FloatArray
+    weight: FloatArray
+    head_sum: FloatArray
+    head_count: FloatArray
+    tail_sum: FloatArray
+    tail_count: FloatArray
+
+    @classmethod
+    def of(
+        cls, s: Sensors, value: FloatArray, weight: FloatArray, nxt: IntArray, in_track: BoolArray
+    ) -> Summed:
+        # A suffix only involves links after its head, which the sweep has not reached yet, so
+        # its sums stay valid; a prefix's are final once the sweep passes its last detection.
+        weight = np.where(in_track, weight, 0.0)
+        tail_sum, tail_count = suffix_sums(s, nxt, value * weight, weight)
+        return cls(value, weight, value * weight, weight.copy(), tail_sum, tail_count)
+
+    def extend_heads(self, m: IntArray, before: IntArray) -> None:
+        """Detections m now follow `before` in their tracks."""
+        self.head_sum[m] = self.value[m] * self.weight[m] + self.head_sum[before]
+        self.head_count[m] = self.weight[m] + self.head_count[before]
+
+
 def boundary_cost(
-    params: AssignmentParams,
-    model: SegmentModel,
-    pairs: Pairs,
-    heads: tuple[FloatArray, FloatArray],
-    tails: tuple[FloatArray, FloatArray],
+    params: AssignmentParams, model: SegmentModel, pairs: Pairs, levels: list[Summed], s: Sensors
 ) -> FloatArray:
     """Cost of joining the prefix ending in each pair's a to the suffix starting with its b,
-    given per detection the sum and count of relative speeds of the prefix up to it (`heads`)
-    and of the suffix from it (`tails`)."""
+    given the prefix and suffix sums of each level term (`level_terms`)."""
     a, b = pairs.a, pairs.b
-    (head_sum, head_count), (tail_sum, tail_count) = heads, tails
-    return link_cost(
-        params,
-        model,
-        pairs,
-        Level(head_sum[a] / head_count[a], head_count[a]),
-        Level(tail_sum[b] / tail_count[b], tail_count[b]),
-    )
+    speed = levels[0]
+    before = Level(speed.head_sum[a] / speed.head_count[a], speed.head_count[a])
+    after = Level(speed.tail_sum[b] / speed.tail_count[b], speed.tail_count[b])
+    if len(levels) > 1:
+        length = levels[1]
+        before.length_count = length.head_count[a]
+        before.length_mean = length.head_sum[a] / np.maximum(before.length_count, 1.0)
+        after.length_count = length.tail_count[b]
+        after.length_mean = length.tail_sum[b] / np.maximum(after.length_count, 1.0)
+    return link_cost(params, model, pairs, before, after, s)
 
 
-def suffix_sums(s: Sensors, nxt: IntArray, in_track: BoolArray) -> tuple[FloatArray, FloatArray]:
-    """Sum of relative speeds, and count, from every detection to its track's end (accumulated
+def suffix_sums(
+    s: Sensors, nxt: IntArray, total: FloatArray, count: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Sums of `total` and `count` from every detection to its track's end (accumulated
     backwards, sensor by sensor)."""
-    total = np.where(in_track, s.relative_speed, 0.0)
-    count = in_track.astype(np.float64)
+    total, count = total.copy(), count.copy()
     for k in range(s.positions.size - 1, -1, -1):
         m = s.members(k)
         m = m[nxt[m] >= 0]

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from roadlink.association.associators.assignment.features import SensorFeatures
 from roadlink.association.associators.assignment.params import AssignmentParams
 from roadlink.association.associators.assignment.robust import median
 from roadlink.association.detections import Detections, FloatArray, IntArray
@@ -45,6 +46,7 @@ class Sensors:
     sorted_log_speed: FloatArray
     top_speed: FloatArray  # the fastest speed measured at each sensor
     median_speed: FloatArray  # the median (floored) speed at each sensor
+    features: SensorFeatures | None = None  # lane, length, class, where detectors report them
 
     def members(self, k: int) -> IntArray:
         return self.order[self.start[k] : self.start[k + 1]]
@@ -85,4 +87,5 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         log_speed[order],
         np.maximum.reduceat(speed[order], start[:-1]) if order.size else np.zeros(0),
         np.array([median(speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]),
+        SensorFeatures.of(detections),
     )

@@ -23,20 +23,64 @@ BoolArray = npt.NDArray[np.bool_]
 @dataclass
 class TrackLevel:
     """Per detection: mean relative speed of its track up to and including it, and how many
-    detections that mean is over."""
+    detections that mean is over; where detectors measure length, the same of its log lengths
+    (a detection without a reading keeps its predecessor's)."""
 
     mean: FloatArray
     count: FloatArray
+    length_mean: FloatArray | None = None
+    length_count: FloatArray | None = None
 
     @classmethod
     def start(cls, s: Sensors) -> TrackLevel:
-        return cls(s.relative_speed.copy(), np.ones(s.relative_speed.size))
+        alone = detection_level(s, np.arange(s.time.size))
+        return cls(alone.mean, alone.count, alone.length_mean, alone.length_count)
 
     def extend(self, s: Sensors, a: IntArray, b: IntArray) -> None:
         """Detection b continues the track that ends in detection a."""
         count = self.count[a] + 1.0
         self.mean[b] = self.mean[a] + (s.relative_speed[b] - self.mean[a]) / count
         self.count[b] = count
+        if self.length_mean is None or self.length_count is None:
+            return
+        total = (
+            self.length_mean[a] * self.length_count[a] + self.length_mean[b] * self.length_count[b]
+        )
+        self.length_count[b] += self.length_count[a]
+        self.length_mean[b] = total / np.maximum(self.length_count[b], 1.0)
+
+    def of(self, a: IntArray) -> Level:
+        """The level of the tracks ending in detections a."""
+        return Level(
+            self.mean[a],
+            self.count[a],
+            None if self.length_mean is None else self.length_mean[a],
+            None if self.length_count is None else self.length_count[a],
+        )
+
+
+def detection_level(s: Sensors, b: IntArray) -> Level:
+    """The level of detections b, each alone (a track that starts with it)."""
+    if s.features is None or not s.features.has_length():
+        return Level(s.relative_speed[b], np.ones(b.size))
+    log_length = s.features.log_length[b]
+    measured = np.isfinite(log_length)
+    return Level(
+        s.relative_speed[b],
+        np.ones(b.size),
+        np.where(measured, log_length, 0.0),
+        measured.astype(np.float64),
+    )
+
+
+def level_terms(s: Sensors) -> list[tuple[FloatArray, FloatArray]]:
+    """What a piece of track averages, as (value, weight) per detection: its relative speed,
+    and, where detectors measure length, its log length (weight 0 where not read)."""
+    terms = [(s.relative_speed, np.ones(s.time.size))]
+    if s.features is not None and s.features.has_length():
+        measured = np.isfinite(s.features.log_length)
+        terms.append((np.where(measured, s.features.log_length, 0.0), measured.astype(float)))
+    return terms
 
 
 def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
@@ -102,9 +146,7 @@ def _extend_tracks(
     if not pairs.a.size:
         return np.zeros(0, dtype=np.int64)
     a, b = pairs.a, pairs.b
-    before = Level(level.mean[a], level.count[a])
-    after = Level(s.relative_speed[b], np.ones(b.size))
-    cost = link_cost(params, model, pairs, before, after)
+    cost = link_cost(params, model, pairs, level.of(a), detection_level(s, b), s)
     linked_a, linked_b = match(a, b, cost, params.gate_cost)
     level.extend(s, linked_a, linked_b)
     track[linked_b] = track[linked_a]
