@@ -40,3 +40,11 @@ def test_a_speed_noise_case_is_its_base_case_with_noisy_speeds():
     assert np.array_equal(noisy.target, base.target)
     error = np.log(noisy.velocity / base.velocity)
     assert 0.05 < np.std(error) < 0.07
+
+
+def test_with_features_adds_the_features_and_the_length_error_and_keeps_the_other_faults():
+    faulty = SUMO_SCENARIOS["sumo-faulty"]
+    featured = bench.with_features(faulty, 0.07)
+    assert featured.features and featured.faults.length_noise == 0.07
+    assert featured.faults.model_copy(update={"length_noise": 0.0}) == faulty.faults
+    assert featured.sensor_positions == faulty.sensor_positions
