@@ -276,7 +276,12 @@ def main() -> None:
     # With --features, each associator is scored on the same cases without them too ("-f").
     columns = [(name, False) for name in args.associators]
     if args.features:
-        columns = [(name, stripped) for name in args.associators for stripped in (False, True)]
+        # The references ignore features: scoring them twice would say nothing.
+        columns = [
+            (name, stripped)
+            for name in args.associators
+            for stripped in ((False,) if name in REFERENCES else (False, True))
+        ]
     titles = [name + (" -f" if stripped else "") for name, stripped in columns]
 
     rows: list[dict[str, object]] = []
