@@ -7,6 +7,7 @@ import uuid
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from sqlalchemy import Engine, func, select
 
 from roadlink.association.detections import Detections
@@ -33,6 +34,40 @@ def detection_rows(detections: Detections) -> list[dict[str, Any]]:
         }
         for i in range(len(d))
     ]
+
+
+def with_features(detections: Detections, *, lane_sensors: int | None = None) -> Detections:
+    """The detections with the three detector features, each target's own (drawn from its
+    label, so that a target's detections agree), as real detectors report them: a truck every
+    third target, lanes only from the first `lane_sensors` sensors along the road (all when
+    None), and no length or class for false alarms' odd rows (mixed reporting)."""
+    d = detections
+    labels = [str(t) for t in d.target.tolist()]
+    rank = {label: k for k, label in enumerate(sorted(set(labels)))}
+    sensors = list(dict.fromkeys(d.sensor_id[np.argsort(d.position, kind="stable")].tolist()))
+    with_lanes = set(sensors[:lane_sensors] if lane_sensors is not None else sensors)
+    truck = [rank[label] % 3 == 0 for label in labels]
+    odd = [label == "clutter" and i % 2 == 1 for i, label in enumerate(labels)]
+    return Detections.from_columns(
+        d.position,
+        d.velocity,
+        d.timestamp,
+        sensor_id=d.sensor_id.tolist(),
+        detection_id=d.detection_id.tolist(),
+        target=d.target.tolist(),
+        lane=[
+            rank[label] % 3 if sensor in with_lanes else None
+            for label, sensor in zip(labels, d.sensor_id.tolist(), strict=True)
+        ],
+        length=[
+            None if skip else (12.0 if big else 4.0) + 0.1 * (rank[label] % 7)
+            for label, big, skip in zip(labels, truck, odd, strict=True)
+        ],
+        vehicle_class=[
+            None if skip else ("truck" if big else "car")
+            for big, skip in zip(truck, odd, strict=True)
+        ],
+    )
 
 
 def assert_problem(response: Any, status: int) -> dict[str, Any]:
