@@ -11,6 +11,8 @@ import numpy as np
 from sqlalchemy import Engine, func, select
 
 from roadlink.association.detections import Detections
+from roadlink.db import repository
+from roadlink.db.engine import make_session_factory, transaction
 from roadlink.db.models import Base
 
 MakeKey = Callable[..., str]
@@ -68,6 +70,20 @@ def with_features(detections: Detections, *, lane_sensors: int | None = None) ->
             for big, skip in zip(truck, odd, strict=True)
         ],
     )
+
+
+def store_batches(engine: Engine, *batches: Detections) -> tuple[uuid.UUID, list[uuid.UUID]]:
+    """Store the batches in a new deployment, through the repository; its id and theirs."""
+    factory = make_session_factory(engine)
+    with transaction(factory) as session:
+        deployment = repository.create_deployment(session, name="road", sensors=None)
+        ids = [
+            repository.insert_batch(
+                session, deployment_id=deployment.id, detections=d, source="json"
+            ).id
+            for d in batches
+        ]
+    return deployment.id, ids
 
 
 def assert_problem(response: Any, status: int) -> dict[str, Any]:
