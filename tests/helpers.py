@@ -23,8 +23,10 @@ EnqueueJob = Callable[..., uuid.UUID]
 
 
 def detection_rows(detections: Detections) -> list[dict[str, Any]]:
-    """Detections as the JSON batch body lists them."""
+    """Detections as the JSON batch body lists them (with a key for each feature some
+    detection reports, null where this one does not)."""
     d = detections
+    features = {name: d.feature_values(name) for name in d.features}
     return [
         {
             "position": float(d.position[i]),
@@ -33,6 +35,7 @@ def detection_rows(detections: Detections) -> list[dict[str, Any]]:
             "sensor_id": d.sensor_id[i],
             "detection_id": d.detection_id[i],
             "target": d.target[i],
+            **{name: values[i] for name, values in features.items()},
         }
         for i in range(len(d))
     ]
