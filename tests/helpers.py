@@ -7,9 +7,12 @@ import uuid
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from sqlalchemy import Engine, func, select
 
 from roadlink.association.detections import Detections
+from roadlink.db import repository
+from roadlink.db.engine import make_session_factory, transaction
 from roadlink.db.models import Base
 
 MakeKey = Callable[..., str]
@@ -20,8 +23,10 @@ EnqueueJob = Callable[..., uuid.UUID]
 
 
 def detection_rows(detections: Detections) -> list[dict[str, Any]]:
-    """Detections as the JSON batch body lists them."""
+    """Detections as the JSON batch body lists them (with a key for each feature some
+    detection reports, null where this one does not)."""
     d = detections
+    features = {name: d.feature_values(name) for name in d.features}
     return [
         {
             "position": float(d.position[i]),
@@ -30,9 +35,58 @@ def detection_rows(detections: Detections) -> list[dict[str, Any]]:
             "sensor_id": d.sensor_id[i],
             "detection_id": d.detection_id[i],
             "target": d.target[i],
+            **{name: values[i] for name, values in features.items()},
         }
         for i in range(len(d))
     ]
+
+
+def with_features(detections: Detections, *, lane_sensors: int | None = None) -> Detections:
+    """The detections with the three detector features, each target's own (drawn from its
+    label, so that a target's detections agree), as real detectors report them: a truck every
+    third target, lanes only from the first `lane_sensors` sensors along the road (all when
+    None), and no length or class for false alarms' odd rows (mixed reporting)."""
+    d = detections
+    labels = [str(t) for t in d.target.tolist()]
+    rank = {label: k for k, label in enumerate(sorted(set(labels)))}
+    sensors = list(dict.fromkeys(d.sensor_id[np.argsort(d.position, kind="stable")].tolist()))
+    with_lanes = set(sensors[:lane_sensors] if lane_sensors is not None else sensors)
+    truck = [rank[label] % 3 == 0 for label in labels]
+    odd = [label == "clutter" and i % 2 == 1 for i, label in enumerate(labels)]
+    return Detections.from_columns(
+        d.position,
+        d.velocity,
+        d.timestamp,
+        sensor_id=d.sensor_id.tolist(),
+        detection_id=d.detection_id.tolist(),
+        target=d.target.tolist(),
+        lane=[
+            rank[label] % 3 if sensor in with_lanes else None
+            for label, sensor in zip(labels, d.sensor_id.tolist(), strict=True)
+        ],
+        length=[
+            None if skip else (12.0 if big else 4.0) + 0.1 * (rank[label] % 7)
+            for label, big, skip in zip(labels, truck, odd, strict=True)
+        ],
+        vehicle_class=[
+            None if skip else ("truck" if big else "car")
+            for big, skip in zip(truck, odd, strict=True)
+        ],
+    )
+
+
+def store_batches(engine: Engine, *batches: Detections) -> tuple[uuid.UUID, list[uuid.UUID]]:
+    """Store the batches in a new deployment, through the repository; its id and theirs."""
+    factory = make_session_factory(engine)
+    with transaction(factory) as session:
+        deployment = repository.create_deployment(session, name="road", sensors=None)
+        ids = [
+            repository.insert_batch(
+                session, deployment_id=deployment.id, detections=d, source="json"
+            ).id
+            for d in batches
+        ]
+    return deployment.id, ids
 
 
 def assert_problem(response: Any, status: int) -> dict[str, Any]:

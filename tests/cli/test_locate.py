@@ -7,9 +7,11 @@ from typer.testing import CliRunner
 
 from roadlink.association import associate
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
-from roadlink.association.csvio import read_detections_csv
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.association.localisation import positions_at, target_trajectory
 from roadlink.cli import app
+from roadlink.simulation import preset, simulate
+from tests.helpers import with_features
 
 runner = CliRunner()
 
@@ -121,3 +123,58 @@ def test_associate_plot_rejects_bad_options(large_csv, tmp_path, args, message):
     result = runner.invoke(app, ["associate", str(large_csv), *args])
     assert result.exit_code == 2
     assert message in result.stderr
+
+
+@pytest.fixture(scope="module")
+def featured_csv(tmp_path_factory):
+    """The large scenario with lanes from the first three sensors, lengths and classes."""
+    detections = simulate(preset("large", false_alarm_rate=0.05), seed=1).detections
+    path = tmp_path_factory.mktemp("data") / "featured.csv"
+    path.write_text(write_detections_csv(with_features(detections, lane_sensors=3)))
+    return path
+
+
+def test_associate_reads_the_features_and_prints_them_back(featured_csv):
+    detections = read_detections_csv(featured_csv.read_text())
+    printed = runner.invoke(app, ["associate", str(featured_csv), "--json"])
+    assert printed.exit_code == 0, printed.output
+    document = json.loads(printed.stdout)
+    rows = [r for t in document["targets"] for r in t["detections"]] + document["unassigned"]
+    lanes = dict(
+        zip(detections.detection_id.tolist(), detections.feature_values("lane"), strict=True)
+    )
+    assert {r["detection_id"]: r["lane"] for r in rows} == lanes
+    assert all(t["vehicle_class"] in ("car", "truck") for t in document["targets"])
+    assert document == associate(detections).to_dict()
+
+    matrix = runner.invoke(app, ["associate", str(featured_csv), "--csv"])
+    assert matrix.exit_code == 0, matrix.output
+    header = matrix.stdout.splitlines()[0].split(",")
+    assert header[-3:] == ["S10_lane", "S10_length", "S10_vehicle_class"]
+
+
+def test_locate_describes_each_target_by_its_length_and_class(featured_csv):
+    result = associate(read_detections_csv(featured_csv.read_text()))
+    first = result.target_features(result.target_members()[0], result.detections.features)
+    at = runner.invoke(app, ["locate", str(featured_csv), "--at", "20", "--json"])
+    assert at.exit_code == 0, at.output
+    rows = json.loads(at.stdout)
+    assert rows and all({"length", "vehicle_class"} <= r.keys() for r in rows)
+    table = runner.invoke(app, ["locate", str(featured_csv), "--at", "20"])
+    assert table.stdout.split()[:5] == ["target", "position", "velocity", "length", "vehicle_class"]
+
+    one = runner.invoke(app, ["locate", str(featured_csv), "--target", "T1", "--json"])
+    assert one.exit_code == 0, one.output
+    trajectory = json.loads(one.stdout)
+    assert list(trajectory)[:3] == ["target", "length", "vehicle_class"]
+    assert {k: trajectory[k] for k in first} == first
+    lanes = [p["lane"] for p in trajectory["passes"]]
+    assert lanes[3:] == [None] * (len(lanes) - 3) and None not in lanes[:3]
+
+
+def test_without_features_locate_prints_what_it_always_did(large_csv):
+    at = json.loads(runner.invoke(app, ["locate", str(large_csv), "--at", "20", "--json"]).stdout)
+    assert {k for r in at for k in r} == {"target", "time", "position", "velocity"}
+    one = runner.invoke(app, ["locate", str(large_csv), "--target", "T1", "--json"]).stdout
+    trajectory = json.loads(one)
+    assert "length" not in trajectory and "lane" not in trajectory["passes"][0]

@@ -9,33 +9,20 @@ from sqlalchemy import JSON, Engine, select, type_coerce, update
 from sqlalchemy.orm import Session
 
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
-from roadlink.association.detections import Detections
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory, transaction
 from roadlink.db.json_columns import BatchSelection, Sensor, WindowSelection
 from roadlink.db.models import Deployment, Job
 from roadlink.queue import enqueue_job
 from roadlink.simulation import preset, simulate
-
-
-def _store(engine: Engine, *batches: Detections) -> tuple[uuid.UUID, list[uuid.UUID]]:
-    factory = make_session_factory(engine)
-    with transaction(factory) as session:
-        deployment = repository.create_deployment(session, name="road", sensors=None)
-        ids = [
-            repository.insert_batch(
-                session, deployment_id=deployment.id, detections=d, source="json"
-            ).id
-            for d in batches
-        ]
-    return deployment.id, ids
+from tests.helpers import store_batches
 
 
 def test_a_batch_comes_back_exactly_as_stored(engine: Engine) -> None:
     detections = simulate(
         preset("large", miss_probability=0.1, false_alarm_rate=0.1), seed=3
     ).detections
-    deployment_id, (batch_id,) = _store(engine, detections)
+    deployment_id, (batch_id,) = store_batches(engine, detections)
     factory = make_session_factory(engine)
     with factory() as session:
         loaded = repository.load_detections(
@@ -52,7 +39,7 @@ def test_a_time_window_spans_batches_and_keeps_reused_ids_apart(engine: Engine) 
     text = "position,velocity,timestamp\n0,30,1\n100,30,4.3\n0,40,10\n100,40,12.5\n"
     first = read_detections_csv(text)
     second = read_detections_csv(text.replace("\n0,", "\n200,", 1))  # same ids d1..d4
-    deployment_id, batch_ids = _store(engine, first, second)
+    deployment_id, batch_ids = store_batches(engine, first, second)
     factory = make_session_factory(engine)
     with factory() as session:
         window = repository.load_detections(
@@ -79,7 +66,7 @@ def test_selections_and_sensors_are_stored_as_the_json_they_always_were(engine: 
     """The typed columns write the JSON that rows written before them hold, and read such rows
     back: no migration was needed."""
     text = "position,velocity,timestamp\n0,30,1\n100,30,4.3\n"
-    deployment_id, (batch_id,) = _store(engine, read_detections_csv(text))
+    deployment_id, (batch_id,) = store_batches(engine, read_detections_csv(text))
     factory = make_session_factory(engine)
     with transaction(factory) as session:
         sensors = [Sensor("S1", 0.0), Sensor("S2", 100.0)]

@@ -16,13 +16,16 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from roadlink.api.errors import ApiProblem, problems_from_detections, validation_item
 from roadlink.api.schemas import AssociateRequest
-from roadlink.association.csvio import TooManyRows, read_csv_columns
+from roadlink.association.csvio import FEATURE_COLUMNS, TooManyRows, read_csv_columns
 from roadlink.association.detections import DetectionError, Detections, Problem
 from roadlink.db.json_columns import Sensor
 from roadlink.services.problems import ProblemItem
 
-DETECTION_FIELDS = ("position", "velocity", "timestamp", "sensor_id", "detection_id", "target")
 REQUIRED_FIELDS = ("position", "velocity", "timestamp")
+TEXT_FIELDS = ("sensor_id", "detection_id", "target", "vehicle_class")
+# Detector features that are numbers: null or absent means "not reported".
+OPTIONAL_NUMBER_FIELDS = ("lane", "length")
+DETECTION_FIELDS = (*REQUIRED_FIELDS, "sensor_id", "detection_id", "target", *FEATURE_COLUMNS)
 
 
 class _Envelope(BaseModel):
@@ -57,11 +60,14 @@ def parse_json_batch(
             "the batch has no detections",
             errors=[ProblemItem(field="detections", pointer="/detections", message="is empty")],
         )
-    columns = {name: [row.get(name) for row in rows] for name in DETECTION_FIELDS}
+    columns: dict[str, Any] = {name: [row.get(name) for row in rows] for name in DETECTION_FIELDS}
     if not _well_formed(rows, columns):
         items = _shape_problems(rows)
         if items:
             raise ApiProblem(422, _count(items), errors=items)
+    for name in FEATURE_COLUMNS:  # reported by no detection: spare the core a per-row check
+        if columns[name].count(None) == len(rows):
+            columns[name] = None
     with_sensors = _fill_declared_sensors(columns, sensors, json_body=True)
     return validate_columns(with_sensors, "/detections"), envelope.associate
 
@@ -84,9 +90,18 @@ def _well_formed(rows: list[dict[str, Any]], columns: dict[str, list[Any]]) -> b
     known = frozenset(DETECTION_FIELDS)
     return (
         all(map(known.issuperset, rows))
-        and all(set(map(type, columns[name])) <= {int, float} for name in REQUIRED_FIELDS)
-        and all(set(map(type, columns[name])) <= {str, type(None)} for name in DETECTION_FIELDS[3:])
+        and all(set(map(type, columns[name])) <= _NUMBER for name in REQUIRED_FIELDS)
+        and all(
+            set(map(type, columns[name])) <= _OPTIONAL_NUMBER for name in OPTIONAL_NUMBER_FIELDS
+        )
+        and all(set(map(type, columns[name])) <= _OPTIONAL_TEXT for name in TEXT_FIELDS)
     )
+
+
+# Exact JSON value types (bool is an int to Python, not a number to JSON).
+_NUMBER = {int, float}
+_OPTIONAL_NUMBER = {int, float, type(None)}
+_OPTIONAL_TEXT = {str, type(None)}
 
 
 def _shape_problems(rows: list[dict[str, Any]]) -> list[ProblemItem]:
@@ -99,9 +114,13 @@ def _shape_problems(rows: list[dict[str, Any]]) -> list[ProblemItem]:
             value = row.get(name)
             if value is None:
                 items.append(_row_item(i, name, "is required"))
-            elif type(value) not in (int, float):  # bool is an int to Python, not to JSON
+            elif type(value) not in _NUMBER:
                 items.append(_row_item(i, name, f"must be a JSON number, got {value!r}"))
-        for name in DETECTION_FIELDS[3:]:
+        for name in OPTIONAL_NUMBER_FIELDS:
+            value = row.get(name)
+            if type(value) not in _OPTIONAL_NUMBER:
+                items.append(_row_item(i, name, f"must be a JSON number or null, got {value!r}"))
+        for name in TEXT_FIELDS:
             value = row.get(name)
             if value is not None and not isinstance(value, str):
                 items.append(_row_item(i, name, f"must be a string, got {value!r}"))

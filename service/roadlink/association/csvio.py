@@ -16,7 +16,7 @@ import io
 
 import numpy as np
 
-from roadlink.association.detections import NO_LANE, DetectionError, Detections, Problem
+from roadlink.association.detections import DetectionError, Detections, Problem
 
 # What a spreadsheet takes for the start of a formula.
 FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
@@ -138,12 +138,7 @@ def write_detections_csv(detections: Detections) -> str:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow([*REQUIRED_COLUMNS, "sensor_id", "detection_id", "target", *features])
-    cells = {
-        "lane": lambda i: "" if d.lane[i] == NO_LANE else str(int(d.lane[i])),
-        "length": lambda i: "" if np.isnan(d.length[i]) else repr(float(d.length[i])),
-        "vehicle_class": lambda i: _text_cell(d.vehicle_class[i]),
-    }
-    feature_cells = [cells[name] for name in features]
+    feature_cells = [feature_cells_of(d, name) for name in features]
     for i in range(len(d)):
         writer.writerow(
             [
@@ -153,10 +148,20 @@ def write_detections_csv(detections: Detections) -> str:
                 spreadsheet_safe(d.sensor_id[i]),
                 spreadsheet_safe(d.detection_id[i]),
                 _text_cell(d.target[i]),
-                *(cell(i) for cell in feature_cells),
+                *(cells[i] for cells in feature_cells),
             ]
         )
     return out.getvalue()
+
+
+def feature_cells_of(detections: Detections, name: str) -> list[str]:
+    """One feature column as CSV cells: empty where not reported, text made spreadsheet safe."""
+    values = detections.feature_values(name)
+    if name == "lane":
+        return ["" if v is None else str(v) for v in values]
+    if name == "length":
+        return ["" if v is None else repr(v) for v in values]
+    return [_text_cell(v) for v in values]
 
 
 def _text_cell(text: object) -> str:

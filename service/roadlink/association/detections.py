@@ -188,6 +188,16 @@ class Detections:
         )
         return tuple(name for name, mask in present if bool(mask.any()))
 
+    def feature_values(self, name: str) -> list[Any]:
+        """One feature column (`lane`, `length` or `vehicle_class`) as plain Python values with
+        None where not reported: the form JSON, CSV and SQL take."""
+        values: list[Any] = getattr(self, name).tolist()
+        if name == "lane":
+            return [None if v == NO_LANE else v for v in values]
+        if name == "length":
+            return [None if v != v else v for v in values]  # NaN is the one value not itself
+        return values
+
     @property
     def reference_position(self) -> float:
         """Position of the reference sensor S1: the first along the road (smallest position)."""
@@ -226,6 +236,24 @@ def fill_unreported_features(columns: object, n: int) -> None:
     for name, make in unreported.items():
         if getattr(columns, name) is None:
             object.__setattr__(columns, name, make())
+
+
+def feature_arrays(
+    lane: Sequence[int | None] | None = None,
+    length: Sequence[float | None] | None = None,
+    vehicle_class: Sequence[str | None] | None = None,
+) -> dict[str, Any]:
+    """The feature arrays of `Detections` from plain values with None where not reported (what
+    `feature_values` gives), for a column that is absent as well: unvalidated, so only for
+    values roadlink stored itself (a result document, the database)."""
+    arrays: dict[str, Any] = {"lane": None, "length": None, "vehicle_class": None}
+    if lane is not None:
+        arrays["lane"] = np.array([NO_LANE if v is None else v for v in lane], dtype=np.int64)
+    if length is not None:
+        arrays["length"] = np.array([np.nan if v is None else v for v in length], dtype=float)
+    if vehicle_class is not None:
+        arrays["vehicle_class"] = np.array(list(vehicle_class), dtype=object)
+    return arrays
 
 
 COLUMNS = (

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -13,8 +14,8 @@ from typing import Any
 import numpy as np
 
 from roadlink.association.backprojection import backproject_times
-from roadlink.association.csvio import spreadsheet_safe
-from roadlink.association.detections import Detections, FloatArray, IntArray
+from roadlink.association.csvio import FEATURE_COLUMNS, feature_cells_of, spreadsheet_safe
+from roadlink.association.detections import Detections, FloatArray, IntArray, feature_arrays
 from roadlink.association.scores import Metrics, score_grouping
 
 
@@ -62,7 +63,8 @@ class AssociationResult:
     def to_dict(self) -> dict[str, Any]:
         """The JSON document (`effective_params` only from an associator that adapts them;
         confidences only from one that builds targets from links)."""
-        rows = _detection_rows(self.detections)
+        features = self.detections.features
+        rows = _detection_rows(self.detections, features)
         adapted = (
             {} if self.effective_params is None else {"effective_params": self.effective_params}
         )
@@ -73,26 +75,51 @@ class AssociationResult:
             "n_detections": len(self.detections),
             "n_targets": self.n_targets,
             "targets": [
-                self._target_dict(k, members, rows)
+                self._target_dict(k, members, rows, features)
                 for k, members in enumerate(self.target_members())
             ],
             "unassigned": [rows[i] for i in np.flatnonzero(self.groups < 0).tolist()],
             "metrics": None if self.metrics is None else self.metrics.to_dict(),
         }
 
-    def _target_dict(self, k: int, members: IntArray, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    def _target_dict(
+        self, k: int, members: IntArray, rows: list[dict[str, Any]], features: tuple[str, ...]
+    ) -> dict[str, Any]:
         confidence = self.target_confidence(members)
+        summary = self.target_features(members, features)
         if confidence is None or self.link_confidence is None:
-            return {"target": f"T{k + 1}", "detections": [rows[i] for i in members.tolist()]}
+            return {
+                "target": f"T{k + 1}",
+                **summary,
+                "detections": [rows[i] for i in members.tolist()],
+            }
         links = self.link_confidence[members].tolist()
         return {
             "target": f"T{k + 1}",
             "confidence": confidence,
+            **summary,
             "detections": [
                 rows[i] if math.isnan(link) else {**rows[i], "link_confidence": link}
                 for i, link in zip(members.tolist(), links, strict=True)
             ],
         }
+
+    def target_features(self, members: IntArray, features: tuple[str, ...]) -> dict[str, Any]:
+        """What a target's detections say of the vehicle, for the `features` the input reports
+        (`Detections.features`; none without them, so such results stay as they were):
+        `length`, the median of its measured lengths (one bad loop reading does not move it),
+        and `vehicle_class`, its most common reported class (a tie goes to the class reported
+        first along the road); None where none of its detections reports the feature."""
+        d = self.detections
+        summary: dict[str, Any] = {}
+        if "length" in features:
+            lengths = d.length[members]
+            measured = lengths[~np.isnan(lengths)]
+            summary["length"] = float(np.median(measured)) if measured.size else None
+        if "vehicle_class" in features:
+            counts = Counter(c for c in d.vehicle_class[members].tolist() if c is not None)
+            summary["vehicle_class"] = counts.most_common(1)[0][0] if counts else None
+        return summary
 
     def to_matrix_csv(self) -> str:
         """The paper's X'': one row per target, per sensor its detection id, velocity and time.
@@ -100,7 +127,9 @@ class AssociationResult:
         A cell holding several detections (possible with K-means) lists them separated by ';'.
         From an associator that builds targets from links, a `confidence` column follows the
         target's name, and each sensor has a fourth column, the confidence of the link into its
-        detection (empty for the target's first).
+        detection (empty for the target's first). Each detector feature the input reports
+        (`lane`, `length`, `vehicle_class`) adds one more column per sensor, empty where a
+        detection does not report it; without features the matrix is as it always was.
         """
         d = self.detections
         sensors = _sensors_in_road_order(d)
@@ -110,27 +139,26 @@ class AssociationResult:
         ids = [spreadsheet_safe(str(i)) for i in d.detection_id.tolist()]
         velocities = [repr(v) for v in d.velocity.tolist()]
         timestamps = [repr(t) for t in d.timestamp.tolist()]
+        columns = {"detection_id": ids, "velocity": velocities, "timestamp": timestamps}
+        if self.link_confidence is not None:
+            links = ["" if math.isnan(c) else repr(c) for c in self.link_confidence.tolist()]
+            columns["link_confidence"] = links
+        for name in d.features:
+            columns[name] = feature_cells_of(d, name)
+        fields = list(columns)
+        values = list(columns.values())
         out = io.StringIO()
         writer = csv.writer(out, lineterminator="\n")
-        fields = ["detection_id", "velocity", "timestamp"]
-        links: list[str] = []
-        if self.link_confidence is not None:
-            fields.append("link_confidence")
-            links = ["" if math.isnan(c) else repr(c) for c in self.link_confidence.tolist()]
         writer.writerow(
             ["target"]
-            + (["confidence"] if links else [])
+            + (["confidence"] if self.link_confidence is not None else [])
             + [spreadsheet_safe(f"{sid}_{field}") for sid in sensors for field in fields]
         )
         for k, members in enumerate(self.target_members()):
             cells: list[list[list[str]]] = [[[] for _ in fields] for _ in sensors]
             for i in members.tolist():
-                cell = cells[sensor_of[i]]
-                cell[0].append(ids[i])
-                cell[1].append(velocities[i])
-                cell[2].append(timestamps[i])
-                if links:
-                    cell[3].append(links[i])
+                for cell, of_field in zip(cells[sensor_of[i]], values, strict=True):
+                    cell.append(of_field[i])
             confidence = self.target_confidence(members)
             head = [f"T{k + 1}"] + ([] if confidence is None else [repr(confidence)])
             writer.writerow(head + [";".join(v) for cell in cells for v in cell])
@@ -164,6 +192,12 @@ def result_from_dict(
         else None
     )
     ids = np.array([str(r["detection_id"]) for r in rows], dtype=object).reshape(n)
+    # A feature's key is on every detection when the input reported it, on none otherwise.
+    features = {
+        name: [r.get(name) for r in rows]
+        for name in FEATURE_COLUMNS
+        if any(name in r for r in rows)
+    }
     detections = Detections(
         position=np.array([r["position"] for r in rows], dtype=np.float64).reshape(n),
         velocity=np.array([r["velocity"] for r in rows], dtype=np.float64).reshape(n),
@@ -171,6 +205,7 @@ def result_from_dict(
         sensor_id=np.array([str(r["sensor_id"]) for r in rows], dtype=object).reshape(n),
         detection_id=ids,
         target=np.array([labels.get(i) for i in ids], dtype=object).reshape(n),
+        **feature_arrays(**features),
     )
     group_array = np.array(groups, dtype=np.int64).reshape(n)
     effective = document.get("effective_params")
@@ -232,8 +267,17 @@ def _sensors_in_road_order(d: Detections) -> list[str]:
     return list(dict.fromkeys(d.sensor_id[order].tolist()))
 
 
-def _detection_rows(d: Detections) -> list[dict[str, Any]]:
-    """Every detection as its result-JSON object, in input order."""
+def _detection_rows(d: Detections, features: tuple[str, ...]) -> list[dict[str, Any]]:
+    """Every detection as its result-JSON object, in input order: with a key for each feature
+    the input reports (null where this detection does not), and none without features."""
+    rows = _measurement_rows(d)
+    for name in features:
+        for row, value in zip(rows, d.feature_values(name), strict=True):
+            row[name] = value
+    return rows
+
+
+def _measurement_rows(d: Detections) -> list[dict[str, Any]]:
     return [
         {
             "detection_id": detection_id,

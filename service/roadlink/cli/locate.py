@@ -13,13 +13,16 @@ from typing import Annotated, Any
 import typer
 
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.association.detections import Detections
 from roadlink.association.localisation import (
+    TargetTrajectory,
     positions_at,
     segment_stats,
     target_index,
     target_tracks,
     target_trajectory,
 )
+from roadlink.association.result import AssociationResult
 from roadlink.cli import app
 from roadlink.cli.analysis import AssociatorOption, ParamOption, associate_file, fail
 
@@ -59,12 +62,16 @@ def locate_command(
     if step is not None and target is None:
         raise fail("--step samples a trajectory: give --target too")
     result = associate_file(file, associator, param or [])
+    vehicles = _vehicles(result)
+    described = tuple(
+        name for name in ("length", "vehicle_class") if name in result.detections.features
+    )
 
     if at is not None:
         rows = positions_at(result, at)
         if not rows and not as_json:
             typer.echo(f"no target is on the road at t={at:g}", err=True)
-        _emit(rows, as_json, ("target", "position", "velocity"))
+        _emit(_described(rows, vehicles), as_json, ("target", "position", "velocity", *described))
         return
     try:
         if segments:
@@ -72,9 +79,17 @@ def locate_command(
             if target is not None:
                 tracks = [tracks[target_index(target, len(tracks))]]
             _emit(
-                segment_stats(tracks),
+                _described(segment_stats(tracks), vehicles),
                 as_json,
-                ("target", "from_sensor", "to_sensor", "travel_time", "distance", "mean_speed"),
+                (
+                    "target",
+                    "from_sensor",
+                    "to_sensor",
+                    "travel_time",
+                    "distance",
+                    "mean_speed",
+                    *described,
+                ),
             )
             return
         assert target is not None
@@ -82,7 +97,8 @@ def locate_command(
     except (KeyError, ValueError) as exc:
         raise fail(exc.args[0] if exc.args else str(exc)) from None
     if as_json:
-        sys.stdout.write(json.dumps(dataclasses.asdict(trajectory), indent=2) + "\n")
+        printed = _trajectory_dict(trajectory, vehicles[trajectory.target], result.detections)
+        sys.stdout.write(json.dumps(printed, indent=2) + "\n")
         return
     if not trajectory.monotone:
         typer.echo(
@@ -90,15 +106,46 @@ def locate_command(
             "its detections are probably grouped wrongly",
             err=True,
         )
-    _emit(trajectory.samples, False, ("time", "position", "velocity"))
+    _emit(_described(trajectory.samples, {}), False, ("time", "position", "velocity"))
 
 
-def _emit(rows: Sequence[Any], as_json: bool, columns: tuple[str, ...]) -> None:
-    """Dataclass rows as a JSON array, or as an aligned table of the chosen columns."""
+def _vehicles(result: AssociationResult) -> dict[str, dict[str, Any]]:
+    """Each target's length and class by its name, for the features the input reports (see
+    `AssociationResult.target_features`): empty without features, so the output is as before."""
+    features = result.detections.features
+    return {
+        f"T{k + 1}": result.target_features(members, features)
+        for k, members in enumerate(result.target_members())
+    }
+
+
+def _described(rows: Sequence[Any], vehicles: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """Dataclass rows as dicts, each about a target followed by that target's description."""
+    return [{**dataclasses.asdict(r), **vehicles.get(getattr(r, "target", ""), {})} for r in rows]
+
+
+def _trajectory_dict(
+    trajectory: TargetTrajectory, vehicle: dict[str, Any], detections: Detections
+) -> dict[str, Any]:
+    """The trajectory as JSON: the target's description after its name, and on each pass the
+    features its detection reported (the earliest, when duplicates were merged into it)."""
+    printed = dataclasses.asdict(trajectory)
+    features = {name: detections.feature_values(name) for name in detections.features}
+    if features:
+        index = {i: k for k, i in enumerate(detections.detection_id.tolist())}
+        for sensor_pass in printed["passes"]:
+            first = index[sensor_pass["detection_ids"][0]]
+            sensor_pass.update({name: values[first] for name, values in features.items()})
+    target = {"target": printed.pop("target")}
+    return {**target, **vehicle, **printed}
+
+
+def _emit(rows: list[dict[str, Any]], as_json: bool, columns: tuple[str, ...]) -> None:
+    """Rows as a JSON array, or as an aligned table of the chosen columns."""
     if as_json:
-        sys.stdout.write(json.dumps([dataclasses.asdict(r) for r in rows], indent=2) + "\n")
+        sys.stdout.write(json.dumps(rows, indent=2) + "\n")
         return
-    cells = [[_cell(getattr(r, c)) for c in columns] for r in rows]
+    cells = [[_cell(r[c]) for c in columns] for r in rows]
     widths = [max([len(c), *(len(row[i]) for row in cells)]) for i, c in enumerate(columns)]
     typer.echo("  ".join(c.rjust(w) for c, w in zip(columns, widths, strict=True)))
     for row in cells:
@@ -106,4 +153,6 @@ def _emit(rows: Sequence[Any], as_json: bool, columns: tuple[str, ...]) -> None:
 
 
 def _cell(value: object) -> str:
+    if value is None:
+        return "-"
     return f"{value:.3f}" if isinstance(value, float) else str(value)

@@ -17,6 +17,7 @@ from sqlalchemy import (
     Index,
     Integer,
     MetaData,
+    SmallInteger,
     String,
     Text,
     TypeDecorator,
@@ -168,6 +169,10 @@ class Detection(Base):
     sensor_id: Mapped[str] = mapped_column(String(200))
     detection_id: Mapped[str] = mapped_column(String(200))
     target: Mapped[str | None] = mapped_column(String(200))
+    # The optional detector features; NULL where the detector did not report one.
+    lane: Mapped[int | None] = mapped_column(SmallInteger)
+    length: Mapped[float | None] = mapped_column(Float)
+    vehicle_class: Mapped[str | None] = mapped_column(String(32))
 
 
 class Job(Base):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import itertools
 import uuid
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -13,7 +13,8 @@ from sqlalchemy import func, select, type_coerce
 from sqlalchemy.orm import Session
 from sqlalchemy.types import NullType
 
-from roadlink.association.detections import Detections
+from roadlink.association.csvio import FEATURE_COLUMNS
+from roadlink.association.detections import Detections, feature_arrays
 from roadlink.association.result import AssociationResult, result_from_dict
 from roadlink.db.json_columns import BatchSelection, Selection, Sensor
 from roadlink.db.models import Batch, Deployment, Detection, Job, JobResult, JobState
@@ -31,6 +32,9 @@ DETECTION_INSERT_COLUMNS = (
     "sensor_id",
     "detection_id",
     "target",
+    "lane",
+    "length",
+    "vehicle_class",
 )
 
 
@@ -119,6 +123,7 @@ def insert_batch(
             d.sensor_id.tolist(),
             d.detection_id.tolist(),
             d.target.tolist(),
+            *_feature_parameters(d),
             strict=False,  # the repeats are endless; the row numbers set the length
         )
     )
@@ -131,6 +136,16 @@ def insert_batch(
     for start in range(0, len(rows), INSERT_CHUNK):
         connection.exec_driver_sql(statement, rows[start : start + INSERT_CHUNK])
     return batch
+
+
+def _feature_parameters(d: Detections) -> list[Iterable[Any]]:
+    """The feature columns' values as the insert binds them: NULL where not reported, and all
+    NULL (no conversion at all) for a feature no detection of the batch reports."""
+    reported = d.features
+    return [
+        d.feature_values(name) if name in reported else itertools.repeat(None)
+        for name in FEATURE_COLUMNS
+    ]
 
 
 def count_selected_detections(
@@ -164,6 +179,9 @@ def load_detections(
             # The batch id as the driver returns it: converting it to a UUID on every row cost
             # more than reading the rows. The few distinct values are converted below.
             type_coerce(Detection.batch_id, NullType()),
+            Detection.lane,
+            Detection.length,
+            Detection.vehicle_class,
         )
         .join(Batch, Batch.id == Detection.batch_id)
         .where(_selects(deployment_id, selection))
@@ -176,7 +194,7 @@ def load_detections(
         rank = {str(b): k for k, b in enumerate(selection.batch_ids)}
         rows.sort(key=lambda r: rank[batch_key[r[6]]])  # stable: keeps the row order in a batch
     n = len(rows)
-    columns = list(zip(*rows, strict=True)) if rows else [()] * 7
+    columns = list(zip(*rows, strict=True)) if rows else [()] * 10
     detection_ids = np.array(columns[4], dtype=object).reshape(n)
     if len(batch_key) > 1 and np.unique(detection_ids.astype(str)).size < n:
         detection_ids = np.array(
@@ -190,6 +208,7 @@ def load_detections(
         sensor_id=np.array(columns[3], dtype=object).reshape(n),
         detection_id=detection_ids,
         target=np.array(columns[5], dtype=object).reshape(n),
+        **feature_arrays(*columns[7:10]),
     )
 
 

@@ -176,6 +176,10 @@ class DetectionRow:
     label: str | None
     wrong: bool
     link_confidence: float | None = None
+    # The detector features, where reported (the page shows a column for each the job has).
+    lane: int | None = None
+    length: float | None = None
+    vehicle_class: str | None = None
 
 
 @dataclass
@@ -193,6 +197,8 @@ class TargetRow:
     label_share: str | None
     n_wrong: int
     confidence: float | None = None
+    length: float | None = None
+    vehicle_class: str | None = None
     detections: list[DetectionRow] = field(default_factory=list)
 
 
@@ -207,6 +213,7 @@ class ResultView:
     n_wrong: int
     listed: bool
     has_confidence: bool
+    features: tuple[str, ...] = ()
 
 
 METRIC_NAMES = (
@@ -227,10 +234,13 @@ def _result_view(cached: CachedResult, kind: str) -> ResultView:
     listed = len(d) <= MAX_LISTED_DETECTIONS
 
     links = result.link_confidence
+    features = d.features
+    reported = {name: d.feature_values(name) for name in features}
 
     def row(i: int) -> DetectionRow:
         link = None if links is None or np.isnan(links[i]) else float(links[i])
         return DetectionRow(
+            **{name: values[i] for name, values in reported.items()},
             detection_id=str(d.detection_id[i]),
             sensor_id=str(d.sensor_id[i]),
             position=float(d.position[i]),
@@ -263,6 +273,7 @@ def _result_view(cached: CachedResult, kind: str) -> ResultView:
                 label_share=f"{top[0][1]}/{members.size}" if top else None,
                 n_wrong=int(wrong[members].sum()),
                 confidence=result.target_confidence(members),
+                **result.target_features(members, features),
                 detections=[row(int(i)) for i in members] if listed else [],
             )
         )
@@ -286,6 +297,7 @@ def _result_view(cached: CachedResult, kind: str) -> ResultView:
         n_wrong=int(wrong.sum()),
         listed=listed,
         has_confidence=links is not None,
+        features=features,
     )
 
 

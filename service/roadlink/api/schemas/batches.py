@@ -11,11 +11,14 @@ from pydantic import BaseModel, ConfigDict, Field
 from roadlink.api.schemas.examples import EXAMPLE_ID
 from roadlink.api.schemas.jobs import JobRead
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.association.detections import MAX_CLASS_CHARS, MAX_LANE, MAX_LENGTH
 from roadlink.db.models import Batch, Job
 
 
 class DetectionIn(BaseModel):
-    """One sensor report (the same fields as the detection CSV's columns)."""
+    """One sensor report (the same fields as the detection CSV's columns). The detector features
+    `lane`, `length` and `vehicle_class` are optional per detection; the result carries them back
+    when any detection of the job reports them."""
 
     position: float = Field(description="Sensor position along the road (metres).")
     velocity: float = Field(gt=0, description="Measured velocity (metres per second, > 0).")
@@ -30,6 +33,26 @@ class DetectionIn(BaseModel):
         default=None,
         description="True target label, for scoring and supervised associators; 'clutter' marks "
         "a false alarm; absent = unlabelled.",
+    )
+    lane: int | None = Field(
+        default=None,
+        ge=0,
+        le=MAX_LANE,
+        description="Detector feature: the lane, a whole number from 0 (the rightmost); absent "
+        "or null = not reported.",
+    )
+    length: float | None = Field(
+        default=None,
+        gt=0,
+        le=MAX_LENGTH,
+        description="Detector feature: the vehicle's measured length, > 0 and at most 100, in "
+        "the deployment's position unit (metres by default); absent or null = not measured.",
+    )
+    vehicle_class: str | None = Field(
+        default=None,
+        max_length=MAX_CLASS_CHARS,
+        description="Detector feature: the vehicle class in the deployment's own vocabulary "
+        "(car, truck, 5, ...), at most 32 printable characters; absent or null = not reported.",
     )
 
 
@@ -59,7 +82,29 @@ class BatchCreate(BaseModel):
                         {"position": 100.0, "velocity": 40.7, "timestamp": 5.5, "target": "A1"},
                     ],
                     "associate": {"associator": DEFAULT_ASSOCIATOR, "params": {}},
-                }
+                },
+                {
+                    "detections": [
+                        {
+                            "position": 0.0,
+                            "velocity": 41.2,
+                            "timestamp": 3.1,
+                            "sensor_id": "S1",
+                            "lane": 0,
+                            "length": 4.4,
+                            "vehicle_class": "car",
+                        },
+                        {
+                            "position": 100.0,
+                            "velocity": 40.7,
+                            "timestamp": 5.5,
+                            "sensor_id": "S2",
+                            "lane": None,
+                            "length": 4.6,
+                            "vehicle_class": "car",
+                        },
+                    ],
+                },
             ]
         },
     )

@@ -13,11 +13,53 @@ from roadlink.api.schemas.examples import EXAMPLE_ID
 
 
 class TargetDetectionRead(BaseModel):
+    """One detection of the result; with `lane`, `length` and `vehicle_class` when the job's
+    detections report them (the example)."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "detection_id": "d2",
+                    "sensor_id": "S2",
+                    "position": 100.0,
+                    "velocity": 30.5,
+                    "timestamp": 15.7,
+                    "lane": None,
+                    "length": 4.6,
+                    "vehicle_class": "car",
+                    "link_confidence": 0.98,
+                }
+            ]
+        }
+    )
+
     detection_id: str
     sensor_id: str
     position: float
     velocity: float
     timestamp: float
+    # Absent when the input reported the feature for no detection (the result is then as it was
+    # before features existed); null where it reported it for others but not this one.
+    lane: int | None = Field(
+        default=None,
+        ge=0,
+        description="The lane its detector reported (0 = rightmost). Present only when some "
+        "detection of the job reported a lane; null where this one did not.",
+    )
+    length: float | None = Field(
+        default=None,
+        gt=0,
+        description="The vehicle length its detector measured (the deployment's position "
+        "unit). Present only when some detection of the job reported a length; null where "
+        "this one did not.",
+    )
+    vehicle_class: str | None = Field(
+        default=None,
+        max_length=32,
+        description="The vehicle class its detector reported. Present only when some "
+        "detection of the job reported a class; null where this one did not.",
+    )
     # Absent, never null, where there is no link: so the schema has no null.
     link_confidence: float | SkipJsonSchema[None] = Field(
         default=None,
@@ -39,6 +81,20 @@ class TargetRead(BaseModel):
         description="The approximate probability that every link of the target is right: the "
         "product of its detections' `link_confidence` (1 for a target of one detection). Absent "
         "from associators that group points rather than link them.",
+    )
+    length: float | None = Field(
+        default=None,
+        gt=0,
+        description="The median of its detections' measured lengths (one faulty reading does "
+        "not move it). Present only when some detection of the job reported a length; null "
+        "when none of this target's did.",
+    )
+    vehicle_class: str | None = Field(
+        default=None,
+        max_length=32,
+        description="The class its detections report most often (a tie goes to the class "
+        "reported first along the road). Present only when some detection of the job reported "
+        "a class; null when none of this target's did.",
     )
     detections: list[TargetDetectionRead] = Field(description="Its detections, by position.")
 
