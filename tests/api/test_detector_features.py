@@ -181,7 +181,7 @@ BAD_JSON = [
     ("length", 0, "> 0 and at most 100"),
     ("length", -4.2, "> 0 and at most 100"),
     ("length", 100.5, "> 0 and at most 100"),
-    ("length", 1e300, "> 0 and at most 100"),
+    ("length", 1e300, "beyond the limit"),
     ("length", "4.5", "must be a JSON number or null"),
     ("vehicle_class", 3, "must be a string"),
     ("vehicle_class", "x" * 33, "at most 32 printable characters"),
@@ -205,11 +205,10 @@ def test_a_bad_feature_in_json_names_row_and_field_and_stores_nothing(
     rows[3][name] = value
     posted = client.post(_batches(client, deployment), json={"detections": rows, "associate": {}})
     problem = assert_problem(posted, 422)
-    # One value may break two rules (1e300 is beyond any magnitude and any length).
-    assert {(e["row"], e["field"], e["pointer"]) for e in problem["errors"]} == {
+    assert [(e["row"], e["field"], e["pointer"]) for e in problem["errors"]] == [
         (4, name, f"/detections/3/{name}")
-    }
-    assert any(message in e["message"] for e in problem["errors"])
+    ]
+    assert message in problem["errors"][0]["message"]
     assert row_counts(engine) == before
 
 

@@ -43,13 +43,19 @@ def test_without_features_the_document_has_the_keys_it_always_had(associator: st
     assert not [h for h in header if h.endswith(FEATURES)]
 
 
-@pytest.mark.parametrize("associator", ["assignment", "kmeans++"])
-def test_features_add_keys_and_columns_and_change_nothing_else(associator: str) -> None:
-    """The associators do not use the features (yet): the same grouping, and the same document
-    and matrix once the feature keys and columns are taken out."""
+@pytest.mark.parametrize(
+    ("associator", "ignoring_features"),
+    [("assignment", {"feature_weight": 0.0}), ("kmeans++", {})],
+)
+def test_features_add_keys_and_columns_and_change_nothing_else(
+    associator: str, ignoring_features: dict[str, float]
+) -> None:
+    """With the associator told to ignore the features (K-means ignores them by default): the
+    same grouping, and the same document and matrix once the feature keys and columns are taken
+    out."""
     d = simulate(preset("large", false_alarm_rate=0.05), seed=1).detections
-    plain = associate(d, associator)
-    featured = associate(with_features(d, lane_sensors=5), associator)
+    plain = associate(d, associator, ignoring_features)
+    featured = associate(with_features(d, lane_sensors=5), associator, ignoring_features)
     assert np.array_equal(plain.groups, featured.groups)
     assert _without_features(featured.to_dict()) == plain.to_dict()
     matrix = list(csv.DictReader(io.StringIO(featured.to_matrix_csv())))

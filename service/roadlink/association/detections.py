@@ -412,9 +412,9 @@ def _lane_column(n: int, given: RawColumn | None, problems: list[Problem]) -> In
 def _length_column(n: int, given: RawColumn | None, problems: list[Problem]) -> FloatArray:
     """Vehicle lengths, > 0 and at most MAX_LENGTH; None or a blank is "not measured" (NaN)."""
     lengths = _optional_floats("length", n, given, problems)
-    for row in np.flatnonzero(np.isfinite(lengths) & ((lengths <= 0) | (lengths > MAX_LENGTH)))[
-        :20
-    ]:
+    for row in np.flatnonzero(
+        (np.abs(lengths) <= MAX_ABS_VALUE) & ((lengths <= 0) | (lengths > MAX_LENGTH))
+    )[:20]:
         problems.append(
             Problem(
                 int(row) + 1,
