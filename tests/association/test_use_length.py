@@ -5,7 +5,13 @@ import pytest
 
 from roadlink.association import Detections, associate
 from roadlink.association.associators import ASSOCIATORS, AssociationError
-from roadlink.association.associators.lengths import imputed_lengths
+from roadlink.association.associators.kmeans import (
+    kmeanspp_centres,
+    lloyd,
+    partial_distance_lloyd,
+)
+from roadlink.association.associators.lengths import imputed_lengths, with_length
+from roadlink.association.backprojection import backprojected_features
 from roadlink.simulation import preset, simulate
 
 PAPER = ["kmeans", "kmeans++", "svm-linear", "svm-quadratic"]
@@ -110,3 +116,33 @@ def test_the_length_parameters_are_declared_and_checked():
         assert properties["length_weight"]["exclusiveMinimum"] == 0
     with pytest.raises(AssociationError, match="length_weight"):
         associate(with_lengths(), "kmeans", {"use_length": True, "length_weight": 0})
+
+
+def test_lloyd_over_observed_coordinates_is_plain_lloyd_when_all_are_observed():
+    d = with_lengths("medium", seed=2)
+    points = with_length(backprojected_features(d), d, 3.0)
+    init = kmeanspp_centres(points, 10, np.random.default_rng(1))
+    cost, labels = partial_distance_lloyd(points, np.ones(points.shape, bool), init, 300)
+    expected_cost, expected = lloyd(points, init, 300)
+    assert labels.tolist() == expected.tolist()
+    assert cost == pytest.approx(expected_cost)
+
+
+def test_kmeans_leaves_a_missing_length_out_of_the_distance():
+    # (velocity, time, length): two cars near 0 m/s and two trucks near 1 m/s, and a detection
+    # at 0.2 m/s whose length is missing, imputed as 12 (its sensor saw more trucks, say).
+    points = np.array(
+        [[0.0, 0, 4.0], [0.0, 0, 4.5], [1.0, 0, 16.0], [1.0, 0, 16.5], [0.2, 0, 12.0]]
+    )
+    observed = np.ones(points.shape, bool)
+    observed[4, 2] = False
+    init = points[[0, 2]]
+    cost, labels = partial_distance_lloyd(points, observed, init, 300)
+    # Left out, the length pulls it nowhere: its speed makes it a car's. Imputed, a truck's.
+    assert labels.tolist() == [0, 0, 1, 1, 0]
+    assert lloyd(points, init, 300)[1].tolist() == [0, 0, 1, 1, 1]
+    # The cars' centre: speed (0 + 0 + 0.2) / 3, length from the two that measured it only.
+    centre_speed, centre_length = 0.2 / 3, 4.25
+    expected = 2 * centre_speed**2 + (0.2 - centre_speed) ** 2 + 2 * 0.25**2 + 2 * 0.25**2
+    assert cost == pytest.approx(expected)
+    assert centre_length == pytest.approx(np.mean(points[:2, 2]))
