@@ -6,8 +6,11 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
+from roadlink.api.routers.simulations import _with_declared_sensor_ids
 from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR
+from roadlink.db.json_columns import Sensor
 from roadlink.queue.worker import Worker
+from roadlink.simulation import preset, simulate
 from tests.helpers import assert_problem
 
 
@@ -79,3 +82,45 @@ def test_invalid_simulations(client: TestClient, deployment: dict[str, Any]) -> 
         client.post("/v1/simulations", json={"deployment_id": deployment["id"], "preset": "huge"}),
         422,
     )
+
+
+def test_a_simulation_takes_the_detector_feature_settings(
+    client: TestClient, deployment: dict[str, Any]
+) -> None:
+    config = {"lanes": 3, "vehicle_lengths": True, "vehicle_classes": True, "length_noise": 0.05}
+    created = client.post(
+        "/v1/simulations",
+        json={"deployment_id": deployment["id"], "preset": "small", "config": config},
+    )
+    assert created.status_code == 201, created.text
+    assert created.json()["n_detections"] == 100
+
+
+def test_invalid_feature_settings_name_their_field(
+    client: TestClient, deployment: dict[str, Any]
+) -> None:
+    for config, field in [
+        ({"lanes": 0}, "config.lanes"),
+        ({"lane_change_probability": 0.3}, "config.lane_change_probability"),
+        ({"length_noise": 0.05}, "config.length_noise"),
+    ]:
+        problem = assert_problem(
+            client.post(
+                "/v1/simulations", json={"deployment_id": deployment["id"], "config": config}
+            ),
+            422,
+        )
+        assert [e["field"] for e in problem["errors"]] == [field], problem
+
+
+def test_declared_sensor_names_keep_the_simulated_features() -> None:
+    config = preset("small", sensor_positions=[0.0, 250.0], lanes=2, vehicle_lengths=True)
+    simulated = simulate(config, seed=1).detections
+    declared = [
+        Sensor(sensor_id="loop-a", position=0.0),
+        Sensor(sensor_id="loop-b", position=250.0),
+    ]
+    named = _with_declared_sensor_ids(simulated, declared)
+    assert set(named.sensor_id) == {"loop-a", "loop-b"}
+    assert named.lane.tolist() == simulated.lane.tolist()
+    assert named.length.tolist() == simulated.length.tolist()

@@ -7,8 +7,9 @@ from typer.testing import CliRunner
 
 from roadlink.association import associate
 from roadlink.association.associators import ASSOCIATORS
-from roadlink.association.csvio import read_detections_csv
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.cli import app
+from roadlink.simulation import preset, simulate
 
 runner = CliRunner()
 
@@ -27,6 +28,52 @@ def test_simulate_writes_the_detection_csv(small_csv):
     assert small_csv.read_text().splitlines()[0] == (
         "position,velocity,timestamp,sensor_id,detection_id,target"
     )
+
+
+def test_simulate_reports_lanes_lengths_and_classes_when_asked(tmp_path):
+    path = tmp_path / "features.csv"
+    flags = ["--lanes", "3", "--lane-change", "0.2", "--lengths", "--length-noise", "0.05"]
+    result = runner.invoke(
+        app, ["simulate", "--preset", "small", "--seed", "3", *flags, "--classes", "-o", str(path)]
+    )
+    assert result.exit_code == 0, result.output
+    text = path.read_text()
+    assert text.splitlines()[0].endswith(",target,lane,length,vehicle_class")
+    expected = simulate(
+        preset(
+            "small",
+            lanes=3,
+            lane_change_probability=0.2,
+            vehicle_lengths=True,
+            length_noise=0.05,
+            vehicle_classes=True,
+        ),
+        seed=3,
+    ).detections
+    assert text == write_detections_csv(expected)
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--lane-change", "0.3"], "lane_change_probability: needs lanes"),
+        (["--length-noise", "0.05"], "length_noise: needs vehicle_lengths"),
+        (["--lanes", "0"], "lanes: Input should be greater than or equal to 1"),
+    ],
+)
+def test_simulate_refuses_feature_flags_that_make_no_sense(tmp_path, flags, message):
+    result = runner.invoke(app, ["simulate", *flags, "-o", str(tmp_path / "x.csv")])
+    assert result.exit_code == 2
+    # One line naming the setting, not pydantic's report of every input value.
+    assert result.stderr.startswith(f"error: {message}") and result.stderr.count("\n") == 1
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_simulate_help_names_the_feature_flags():
+    result = runner.invoke(app, ["simulate", "--help"], terminal_width=200)
+    for flag in ("--lanes", "--lane-change", "--lengths", "--no-lengths", "--length-noise"):
+        assert flag in result.stdout
+    assert "--classes" in result.stdout
 
 
 @pytest.mark.parametrize("name", sorted(ASSOCIATORS))

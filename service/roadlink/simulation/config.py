@@ -4,8 +4,16 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
+from roadlink.association.detections import MAX_LANE
 from roadlink.simulation.faults import DetectorFaults
 
 
@@ -75,11 +83,68 @@ class Traffic(BaseModel):
         return self
 
 
-# The traffic's fields come first, then the faults' (pydantic orders the fields of the bases
-# from the last to the first): the order the API's SimulationOverrides lists them in.
-class SimulationConfig(DetectorFaults, Traffic):
-    """Everything Algorithm 1 needs: the traffic, and the faults of the detectors that see it.
-    Defaults are the paper's 'large' preset, with no faults."""
+DEFAULT_LANE_CHANGE_PROBABILITY = 0.1
+
+
+class VehicleFeatures(BaseModel):
+    """What detectors report beyond the paper's (position, velocity, timestamp): each vehicle's
+    lane at every sensor, its length and its class. All off by default (the paper's detector).
+    They are drawn from a random stream of their own, so the vehicles and their true passages are
+    the same with them or without (the faults that read them, length noise and false alarms'
+    features, draw from the faults' stream, so with faults on, which reports are faulty differs)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    lanes: int | None = Field(
+        default=None,
+        ge=1,
+        le=MAX_LANE + 1,
+        description="Number of lanes, numbered from 0 (rightmost); each vehicle starts in a "
+        "random one and every detection reports its lane. None: no lane reported.",
+    )
+    lane_change_probability: float = Field(
+        default=DEFAULT_LANE_CHANGE_PROBABILITY,
+        ge=0,
+        le=1,
+        description="Chance that a vehicle moves to a neighbouring lane between two consecutive "
+        "sensors (needs lanes).",
+    )
+    vehicle_lengths: bool = Field(
+        default=False,
+        description="Every detection reports its vehicle's length: each vehicle is a car (80 %, "
+        "3.6-5.4 m), van (10 %, 5-7 m), truck (8 %, 8-18 m) or bus (2 %, 12-15 m), its length "
+        "uniform in its class's range; measured with length_noise.",
+    )
+    vehicle_classes: bool = Field(
+        default=False,
+        description="Every detection reports its vehicle's class ('car', 'van', 'truck', 'bus'; "
+        "the same mix as vehicle_lengths).",
+    )
+
+    # A field validator (not a model one), so that the error names the field; `lanes` is
+    # declared before it, so it has been validated by then.
+    @field_validator("lane_change_probability")
+    @classmethod
+    def _lane_changes_need_lanes(cls, value: float, info: ValidationInfo) -> float:
+        if info.data.get("lanes") is None and value != DEFAULT_LANE_CHANGE_PROBABILITY:
+            raise ValueError("needs lanes (the number of lanes)")
+        return value
+
+
+# The traffic's fields come first, then the vehicle features', then the faults' (pydantic orders
+# the fields of the bases from the last to the first): the order the API's SimulationOverrides
+# lists them in, and the order that lets a fault's validator read the features.
+class SimulationConfig(DetectorFaults, VehicleFeatures, Traffic):
+    """Everything Algorithm 1 needs: the traffic, what its detectors report of each vehicle, and
+    the faults of those detectors. Defaults are the paper's 'large' preset, with no features and
+    no faults."""
+
+    @field_validator("length_noise")
+    @classmethod
+    def _length_noise_needs_lengths(cls, value: float, info: ValidationInfo) -> float:
+        if value and not info.data.get("vehicle_lengths"):
+            raise ValueError("needs vehicle_lengths (otherwise no length is measured)")
+        return value
 
     @property
     def faults(self) -> DetectorFaults:

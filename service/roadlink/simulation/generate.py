@@ -4,8 +4,10 @@ Each target i enters the road (position 0) at t0 ~ U[t_min, t_max] with velocity
 v_max]; its velocity profile g(v0, t0), which the paper leaves unspecified, is here either constant
 or an Ornstein-Uhlenbeck process around v0 (speed wanders and returns, as a driver's does). All
 targets are integrated together on a fixed time step; a sensor records the exact crossing time
-(interpolated within the step) and the velocity then. Faults are applied last, by the
-fault model that the SUMO simulator shares (`roadlink.simulation.faults`).
+(interpolated within the step) and the velocity then. When the config asks for them, every
+detection also reports its vehicle's lane, length and class (`roadlink.simulation.vehicles`).
+Faults are applied last, by the fault model that the SUMO simulator shares
+(`roadlink.simulation.faults`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 from roadlink.association.detections import CLUTTER, Detections, FloatArray
 from roadlink.simulation.config import SimulationConfig
 from roadlink.simulation.faults import Passages, apply_detector_faults
+from roadlink.simulation.vehicles import draw_features, feature_rng
 
 # A driver may slow to a crawl but never stops for good or reverses: the OU speed is floored.
 MIN_SPEED_SHARE = 0.05
@@ -54,23 +57,21 @@ def simulate(
 
     target = np.repeat(np.arange(config.n_targets), sensors.size)
     sensor = np.tile(np.arange(sensors.size), config.n_targets)
-    passages = Passages(sensor, times.ravel(), speeds.ravel(), target)
+    features = draw_features(config, sensors.size, feature_rng(seed))
+    passages = Passages(sensor, times.ravel(), speeds.ravel(), target, **features.columns())
     passages = _detector_faults(config, sensors, passages, rng)
     # As sensors log them: by sensor, then by time.
-    order = np.lexsort((passages.time, passages.sensor))
-    target, sensor, time, speed = (
-        passages.target[order],
-        passages.sensor[order],
-        passages.time[order],
-        passages.speed[order],
-    )
+    passages = passages.take(np.lexsort((passages.time, passages.sensor)))
+    target, sensor = passages.target, passages.sensor
     labels = np.where(target >= 0, np.char.add("A", (target + 1).astype(str)), CLUTTER)
     detections = Detections.from_columns(
         sensors[sensor],
-        speed,
-        time,
+        passages.speed,
+        passages.time,
         sensor_id=[f"S{k + 1}" for k in sensor],
         target=labels.tolist(),
+        # Only the features the config reports: the others stay absent, as the paper's are.
+        **{name: getattr(passages, name) for name in features.columns()},
     )
     return Simulation(detections, trajectories)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import cast
 
 import numpy as np
@@ -84,11 +85,5 @@ def _with_declared_sensor_ids(detections: Detections, declared: list[Sensor]) ->
             errors=[ProblemItem(field="config.sensor_positions", message="not declared sensors")],
         )
     names = np.array([by_position[float(p)] for p in detections.position], dtype=object)
-    return Detections(
-        detections.position,
-        detections.velocity,
-        detections.timestamp,
-        names,
-        detections.detection_id,
-        detections.target,
-    )
+    # Every other column as simulated, the lane, length and class reported included.
+    return dataclasses.replace(detections, sensor_id=names)
