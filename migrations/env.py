@@ -6,7 +6,7 @@ from __future__ import annotations
 from logging.config import fileConfig
 
 from alembic import context
-from sqlalchemy import pool, text
+from sqlalchemy import Connection, pool, text
 
 from roadlink.db.engine import make_engine
 from roadlink.db.models import Base
@@ -39,6 +39,8 @@ def run_migrations_offline() -> None:
 def run_migrations_online() -> None:
     engine = make_engine(database_url(), poolclass=pool.NullPool)
     with engine.connect() as connection:
+        if connection.dialect.name == "sqlite":
+            _stop_cascades_while_migrating(connection)
         context.configure(
             connection=connection,
             target_metadata=Base.metadata,
@@ -51,7 +53,24 @@ def run_migrations_online() -> None:
                 # Several API replicas may start at once: one migrates, the others wait.
                 connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": LOCK_KEY})
             context.run_migrations()
+        if connection.dialect.name == "sqlite":
+            _check_foreign_keys(connection)
     engine.dispose()
+
+
+def _stop_cascades_while_migrating(connection: Connection) -> None:
+    """Batch mode recreates a SQLite table by copying it and dropping the original: with foreign
+    keys enforced, dropping `batch` would delete its detections (ON DELETE CASCADE). They are
+    off for this connection (set outside a transaction, where SQLite honours it)."""
+    connection.exec_driver_sql("PRAGMA foreign_keys=OFF")
+    connection.commit()
+
+
+def _check_foreign_keys(connection: Connection) -> None:
+    broken = connection.exec_driver_sql("PRAGMA foreign_key_check").all()
+    connection.commit()
+    if broken:
+        raise RuntimeError(f"the migration left rows that break foreign keys: {broken[:5]}")
 
 
 if context.is_offline_mode():
