@@ -6,14 +6,12 @@ from __future__ import annotations
 from logging.config import fileConfig
 
 from alembic import context
-from sqlalchemy import Connection, pool, text
+from sqlalchemy import pool
 
+from roadlink.db.drivers import driver_for
 from roadlink.db.engine import make_engine
 from roadlink.db.models import Base
 from roadlink.settings import Settings
-
-# Any constant shared by every roadlink process: the advisory lock serialising migrations.
-LOCK_KEY = 0x726F61646C696E6B  # "roadlink"
 
 config = context.config
 if config.config_file_name is not None:
@@ -37,40 +35,20 @@ def run_migrations_offline() -> None:
 
 
 def run_migrations_online() -> None:
-    engine = make_engine(database_url(), poolclass=pool.NullPool)
-    with engine.connect() as connection:
-        if connection.dialect.name == "sqlite":
-            _stop_cascades_while_migrating(connection)
+    url = database_url()
+    driver = driver_for(url)  # what differs between the databases, migrations included
+    engine = make_engine(url, poolclass=pool.NullPool)
+    with engine.connect() as connection, driver.migrating(connection):
         context.configure(
             connection=connection,
             target_metadata=Base.metadata,
-            # SQLite cannot ALTER most things; batch mode recreates the table instead.
-            render_as_batch=connection.dialect.name == "sqlite",
+            render_as_batch=driver.rebuilds_tables,
             compare_type=True,
         )
         with context.begin_transaction():
-            if connection.dialect.name == "postgresql":
-                # Several API replicas may start at once: one migrates, the others wait.
-                connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": LOCK_KEY})
+            driver.lock_migrations(connection)
             context.run_migrations()
-        if connection.dialect.name == "sqlite":
-            _check_foreign_keys(connection)
     engine.dispose()
-
-
-def _stop_cascades_while_migrating(connection: Connection) -> None:
-    """Batch mode recreates a SQLite table by copying it and dropping the original: with foreign
-    keys enforced, dropping `batch` would delete its detections (ON DELETE CASCADE). They are
-    off for this connection (set outside a transaction, where SQLite honours it)."""
-    connection.exec_driver_sql("PRAGMA foreign_keys=OFF")
-    connection.commit()
-
-
-def _check_foreign_keys(connection: Connection) -> None:
-    broken = connection.exec_driver_sql("PRAGMA foreign_key_check").all()
-    connection.commit()
-    if broken:
-        raise RuntimeError(f"the migration left rows that break foreign keys: {broken[:5]}")
 
 
 if context.is_offline_mode():

@@ -7,16 +7,19 @@ A driver owns what differs between SQLite and PostgreSQL:
 - how a claim locks its candidate (`lock_for_claim`: SKIP LOCKED on PostgreSQL);
 - notifications sent by a transaction, delivered at its commit and never on rollback
   (`notify`), and listening for them (`listen`): PostgreSQL's NOTIFY and LISTEN; on SQLite,
-  in-process delivery after the commit plus the database file's doorbell for other processes.
+  in-process delivery after the commit plus the database file's doorbell for other processes;
+- migrating (`migrations/env.py`): whether Alembic rebuilds tables to alter them, what a
+  migration run needs around it (`migrating`) and inside its transaction (`lock_migrations`).
 """
 
 from __future__ import annotations
 
 import weakref
 from collections.abc import Sequence
+from contextlib import AbstractContextManager
 from typing import Any, Protocol, TypeVar
 
-from sqlalchemy import Engine, Select, make_url
+from sqlalchemy import Connection, Engine, Select, make_url
 from sqlalchemy.orm import Session
 
 from roadlink.db.drivers.postgres import PostgresDriver
@@ -61,6 +64,15 @@ class Driver(Protocol):
 
     def listen(self, channel: str) -> Listener:
         """A listener on `channel` of this database."""
+
+    rebuilds_tables: bool
+    """Whether Alembic alters a table by rebuilding it (its batch mode)."""
+
+    def migrating(self, connection: Connection) -> AbstractContextManager[None]:
+        """Around a migration run on `connection`, outside its transaction."""
+
+    def lock_migrations(self, connection: Connection) -> None:
+        """In the migration's transaction: wait while another process migrates."""
 
 
 def driver_for(database_url: str) -> Driver:

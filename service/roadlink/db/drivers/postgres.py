@@ -7,11 +7,14 @@ commit, never on rollback), heard by LISTEN on a connection of the listener's ow
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
-from sqlalchemy import Engine, create_engine, func, make_url, text
+from sqlalchemy import Connection, Engine, create_engine, func, make_url, text
 from sqlalchemy.orm import Session
+
+# Any constant shared by every roadlink process: the advisory lock serialising migrations.
+MIGRATION_LOCK_KEY = 0x726F61646C696E6B  # "roadlink"
 
 
 class PostgresDriver:
@@ -43,6 +46,16 @@ class PostgresDriver:
 
     def listen(self, channel: str) -> PostgresListener:
         return PostgresListener(self._conninfo, channel)
+
+    rebuilds_tables = False
+
+    @contextlib.contextmanager
+    def migrating(self, connection: Connection) -> Iterator[None]:
+        yield
+
+    def lock_migrations(self, connection: Connection) -> None:
+        # Several API replicas may start at once: one migrates, the others wait.
+        connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": MIGRATION_LOCK_KEY})
 
 
 def libpq_conninfo(database_url: str) -> str:

@@ -8,10 +8,11 @@ may be lost, so listeners are never sure to hear everything: their users poll as
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Connection, Engine, create_engine, event
 from sqlalchemy.engine import ExceptionContext
 from sqlalchemy.orm import Session
 
@@ -70,6 +71,25 @@ class SqliteDriver:
 
     def listen(self, channel: str) -> SqliteListener:
         return SqliteListener(self._database_url, channel)
+
+    # SQLite cannot ALTER most things; Alembic's batch mode recreates the table instead.
+    rebuilds_tables = True
+
+    @contextmanager
+    def migrating(self, connection: Connection) -> Iterator[None]:
+        """Foreign keys off while migrating, checked after: batch mode copies a table and drops
+        the original, and with foreign keys enforced dropping `batch` would delete its
+        detections (ON DELETE CASCADE). Set outside a transaction, where SQLite honours it."""
+        connection.exec_driver_sql("PRAGMA foreign_keys=OFF")
+        connection.commit()
+        yield
+        broken = connection.exec_driver_sql("PRAGMA foreign_key_check").all()
+        connection.commit()
+        if broken:
+            raise RuntimeError(f"the migration left rows that break foreign keys: {broken[:5]}")
+
+    def lock_migrations(self, connection: Connection) -> None:
+        pass  # the database file's write lock serialises migrations already
 
 
 def _configure_connection(dbapi_connection: Any, _record: Any) -> None:
