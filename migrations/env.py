@@ -6,14 +6,12 @@ from __future__ import annotations
 from logging.config import fileConfig
 
 from alembic import context
-from sqlalchemy import pool, text
+from sqlalchemy import pool
 
+from roadlink.db.drivers import driver_for
 from roadlink.db.engine import make_engine
 from roadlink.db.models import Base
 from roadlink.settings import Settings
-
-# Any constant shared by every roadlink process: the advisory lock serialising migrations.
-LOCK_KEY = 0x726F61646C696E6B  # "roadlink"
 
 config = context.config
 if config.config_file_name is not None:
@@ -37,19 +35,18 @@ def run_migrations_offline() -> None:
 
 
 def run_migrations_online() -> None:
-    engine = make_engine(database_url(), poolclass=pool.NullPool)
-    with engine.connect() as connection:
+    url = database_url()
+    driver = driver_for(url)  # what differs between the databases, migrations included
+    engine = make_engine(url, poolclass=pool.NullPool)
+    with engine.connect() as connection, driver.migrating(connection):
         context.configure(
             connection=connection,
             target_metadata=Base.metadata,
-            # SQLite cannot ALTER most things; batch mode recreates the table instead.
-            render_as_batch=connection.dialect.name == "sqlite",
+            render_as_batch=driver.rebuilds_tables,
             compare_type=True,
         )
         with context.begin_transaction():
-            if connection.dialect.name == "postgresql":
-                # Several API replicas may start at once: one migrates, the others wait.
-                connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": LOCK_KEY})
+            driver.lock_migrations(connection)
             context.run_migrations()
     engine.dispose()
 

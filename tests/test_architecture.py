@@ -136,3 +136,23 @@ def test_the_reader_resolves_absolute_relative_and_nested_imports() -> None:
     names = imported_by(source, ["roadlink", "association"])
     assert names == {"sqlalchemy", "roadlink.db", "roadlink.association", "roadlink.api.errors"}
     assert roadlink_parts(names) == {"db", "association", "api"}
+
+
+DRIVERS = PACKAGE / "db" / "drivers"
+# Column types say how a value is stored on each database (SQLAlchemy hands them the dialect).
+COLUMN_TYPES = PACKAGE / "db" / "models.py"
+MIGRATIONS_ENVIRONMENT = PACKAGE.parent.parent / "migrations" / "env.py"
+
+
+def test_only_the_drivers_tell_the_databases_apart() -> None:
+    """Whatever differs between SQLite and PostgreSQL is asked of the driver
+    (`roadlink.db.drivers`): no other module names a database to decide something."""
+    for path in [*PACKAGE.rglob("*.py"), MIGRATIONS_ENVIRONMENT]:
+        if path.is_relative_to(DRIVERS) or path == COLUMN_TYPES:
+            continue
+        names = {
+            node.value
+            for node in ast.walk(ast.parse(path.read_text()))
+            if isinstance(node, ast.Constant) and node.value in ("sqlite", "postgresql")
+        }
+        assert not names, f"{path} tells {sorted(names)} apart itself"

@@ -140,8 +140,3 @@ class Settings(BaseSettings):
                 "or every running job would lose its lease"
             )
         return self
-
-    @property
-    def is_postgres(self) -> bool:
-        """True when the database is PostgreSQL (claims skip locked rows, wake-ups by NOTIFY)."""
-        return self.database_url.startswith("postgresql")

@@ -122,6 +122,7 @@ def test_migration_0003_adds_and_drops_the_columns_keeping_the_detections(
     assert set(FEATURES) <= _detection_columns(engine)
     old = _load(engine, DEPLOYMENT, BatchSelection((BATCH,)))
     assert len(old) == 2 and old.features == ()
+    command.upgrade(config, "head")  # the models store batches as the latest revision has them
     featured, _ = store_batches(engine, with_features(d))
     assert _load(engine, featured, WindowSelection(None, None)).features == FEATURES
 

@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import threading
 import uuid
+from collections.abc import Iterator
 from datetime import timedelta
 
+import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
 from roadlink.association import associate
 from roadlink.association.detections import Detections
 from roadlink.db import repository
+from roadlink.db.drivers import Listener, driver_for
 from roadlink.db.engine import transaction
 from roadlink.db.models import JobState, utcnow
 from roadlink.queue import (
@@ -19,10 +22,12 @@ from roadlink.queue import (
     cancel_job,
     claim_next_job,
     complete_job,
+    enqueue_job,
     fail_job,
     heartbeat_job,
     rescue_expired_jobs,
 )
+from roadlink.queue.transitions import FINISHED_CHANNEL, NOTIFY_CHANNEL
 from tests.helpers import EnqueueJob
 
 
@@ -183,3 +188,84 @@ def test_cancelling_stops_queued_and_running_jobs_but_not_finished_ones(
         )
     with sessions() as session:
         assert repository.get_job_result(session, job_id=running) is None
+
+
+# News of the queue is sent by the transaction that makes it true: delivered at its commit,
+# never when it rolls back (PostgreSQL: NOTIFY; SQLite: in-process news and the doorbell).
+
+
+class Rollback(Exception):
+    """Raised to roll a transaction back."""
+
+
+@pytest.fixture
+def listeners(database_url: str) -> Iterator[tuple[Listener, Listener]]:
+    """Listeners on both queue channels, listening before the test begins."""
+    driver = driver_for(database_url)
+    queued, finished = driver.listen(NOTIFY_CHANNEL), driver.listen(FINISHED_CHANNEL)
+    for listener in (queued, finished):
+        listener.wait(0.0)  # PostgreSQL: the LISTEN connection opens at the first wait
+    yield queued, finished
+    queued.close()
+    finished.close()
+
+
+def _heard(listener: Listener) -> list[str]:
+    """Everything the listener hears within half a second."""
+    payloads: list[str] = []
+    while (heard := listener.wait(0.5)) is not None:
+        payloads += heard
+    return payloads
+
+
+def test_an_enqueue_is_announced_at_commit_only(
+    sessions: sessionmaker[Session],
+    enqueue: EnqueueJob,
+    listeners: tuple[Listener, Listener],
+) -> None:
+    queued, _ = listeners
+    job_id = enqueue()
+    assert _heard(queued) == [str(job_id)]
+    try:
+        with transaction(sessions) as session:
+            job = repository.get_job(session, job_id=job_id)
+            assert job is not None
+            enqueue_job(
+                session,
+                deployment_id=job.deployment_id,
+                selection=job.selection,
+                associator="kmeans++",
+                params={},
+                max_attempts=1,
+            )
+            raise Rollback
+    except Rollback:
+        pass
+    assert _heard(queued) == []
+
+
+def test_a_finish_is_announced_at_commit_only(
+    sessions: sessionmaker[Session],
+    enqueue: EnqueueJob,
+    paper_batch: Detections,
+    listeners: tuple[Listener, Listener],
+) -> None:
+    _, finished = listeners
+    job_id = enqueue()
+    job = _claim(sessions, "w")
+    assert job is not None and job.id == job_id
+    result = associate(paper_batch)
+    try:
+        with transaction(sessions) as session:
+            assert complete_job(
+                session, job_id=job_id, worker_id="w", result=result, duration_seconds=0.1
+            )
+            raise Rollback
+    except Rollback:
+        pass
+    assert _heard(finished) == []
+    with transaction(sessions) as session:
+        assert complete_job(
+            session, job_id=job_id, worker_id="w", result=result, duration_seconds=0.1
+        )
+    assert _heard(finished) == [str(job_id)]

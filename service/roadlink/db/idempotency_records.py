@@ -1,8 +1,10 @@
-"""Idempotency-Keys of job creation, and forgetting every Idempotency-Key once it is old.
+"""Where each endpoint keeps its Idempotency-Keys, and forgetting them once they are old.
 
-Batches keep their key on the batch row (unique per deployment); jobs have the
-`job_idempotency_key` table (unique per API key). Both are remembered for at least
-ROADLINK_IDEMPOTENCY_HOURS (24 by default), then forgotten, so the tables do not grow forever.
+A key is scoped by its sender (the principal: an API key's id, or "anonymous") and its
+endpoint. A deployment's batches keep theirs on the batch row (unique per deployment and
+principal); jobs have the `job_idempotency_key` table (unique per principal). Both are
+remembered for at least ROADLINK_IDEMPOTENCY_HOURS (24 by default), then forgotten, so the
+tables do not grow forever.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ import uuid
 from dataclasses import dataclass
 from datetime import datetime
 
-from sqlalchemy import delete, update
+from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session
 
 from roadlink.db.models import Batch, JobIdempotencyKey
@@ -23,6 +25,18 @@ class Forgotten:
 
     batches: int
     jobs: int
+
+
+def find_batch_idempotency_key(
+    session: Session, *, deployment_id: uuid.UUID, principal: str, idempotency_key: str
+) -> Batch | None:
+    """The batch `principal` created earlier with this key in this deployment, if any."""
+    query = select(Batch).where(
+        Batch.deployment_id == deployment_id,
+        Batch.idempotency_principal == principal,
+        Batch.idempotency_key == idempotency_key,
+    )
+    return session.scalars(query).first()
 
 
 def find_job_idempotency_key(
@@ -60,7 +74,7 @@ def forget_idempotency_keys(session: Session, *, created_before: datetime) -> Fo
     batches = session.execute(
         update(Batch)
         .where(Batch.idempotency_key.is_not(None), Batch.created_at < created_before)
-        .values(idempotency_key=None, request_sha256=None)
+        .values(idempotency_key=None, idempotency_principal=None, request_sha256=None)
     )
     jobs = session.execute(
         delete(JobIdempotencyKey).where(JobIdempotencyKey.created_at < created_before)

@@ -125,8 +125,12 @@ class Batch(Base):
 
     __tablename__ = "batch"
     __table_args__ = (
+        # An Idempotency-Key is the sender's, on this deployment's batches endpoint.
         UniqueConstraint(
-            "deployment_id", "idempotency_key", name="uq_batch_deployment_id_idempotency_key"
+            "deployment_id",
+            "idempotency_principal",
+            "idempotency_key",
+            name="uq_batch_idempotency_scope",
         ),
     )
 
@@ -140,6 +144,8 @@ class Batch(Base):
     last_timestamp: Mapped[float] = mapped_column(Float)
     source: Mapped[str] = mapped_column(String(20))  # json | csv | simulation
     idempotency_key: Mapped[str | None] = mapped_column(String(200))
+    # Who sent the key: the API key's id, or "anonymous" when authentication is disabled.
+    idempotency_principal: Mapped[str | None] = mapped_column(String(64))
     # sha256 of the request, so that a reused key with a different body is told apart.
     request_sha256: Mapped[str | None] = mapped_column(String(64))
     # The job enqueued with the batch (`associate` in the upload), in the same transaction.

@@ -67,16 +67,6 @@ def get_batch(session: Session, *, batch_id: uuid.UUID) -> Batch | None:
     return session.get(Batch, batch_id)
 
 
-def find_batch_by_idempotency_key(
-    session: Session, *, deployment_id: uuid.UUID, idempotency_key: str
-) -> Batch | None:
-    """The batch created earlier with this Idempotency-Key in this deployment, if any."""
-    query = select(Batch).where(
-        Batch.deployment_id == deployment_id, Batch.idempotency_key == idempotency_key
-    )
-    return session.scalars(query).first()
-
-
 def insert_batch(
     session: Session,
     *,
@@ -85,6 +75,7 @@ def insert_batch(
     detections: Detections,
     source: str,
     idempotency_key: str | None = None,
+    idempotency_principal: str | None = None,
     request_sha256: str | None = None,
     job_id: uuid.UUID | None = None,
 ) -> Batch:
@@ -99,6 +90,7 @@ def insert_batch(
         last_timestamp=float(d.timestamp.max()),
         source=source,
         idempotency_key=idempotency_key,
+        idempotency_principal=idempotency_principal,
         request_sha256=request_sha256,
         job_id=job_id,
     )

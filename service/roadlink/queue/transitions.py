@@ -4,137 +4,55 @@ Delivery is at least once: a worker that loses its lease (it stalled, or the job
 can no longer change the job, because every transition of a running job requires
 `state = 'running' AND lease_owner = :me`.
 
-Times that decide who may run a job (run_after, lease expiry, rescue) come from one clock: the
-database's `now()` on PostgreSQL, where workers and API replicas run on several hosts whose clocks
-drift apart; this host's clock on SQLite, which is embedded and so shared by processes of one host.
-
-Notifications: on PostgreSQL a NOTIFY on `NOTIFY_CHANNEL` (a job is runnable) or
-`FINISHED_CHANNEL` (a job finished) is sent in the transaction that makes it true, so it is
-delivered at commit and never on rollback. On SQLite the same news reaches the threads of this
-process through in-process signals fired after the commit, and the other processes on the
-database file through its doorbell (`roadlink.queue.doorbell`), rung after the commit.
+Times that decide who may run a job (run_after, lease expiry, rescue) come from one clock, and
+news of the queue (a job is runnable, jobs finished) is sent by the transaction that makes it
+true, delivered at its commit and never on rollback: both as the database's driver does them
+(`roadlink.db.drivers`).
 """
 
 from __future__ import annotations
 
-import threading
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
 import orjson
-from sqlalchemy import event, func, select, text, update
+from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from roadlink.association.result import AssociationResult
+from roadlink.db.drivers import driver_of
 from roadlink.db.json_columns import Selection
-from roadlink.db.models import Job, JobResult, JobState, utcnow
-from roadlink.queue import doorbell
+from roadlink.db.models import Job, JobResult, JobState
 
 NOTIFY_CHANNEL = "roadlink_jobs"
-"""PostgreSQL channel a NOTIFY is sent on, in the enqueueing transaction, for every new job."""
+"""Channel told, when the transaction commits, of every job that becomes runnable (its id, or
+nothing for a rescue): idle workers listen on it."""
 
 FINISHED_CHANNEL = "roadlink_jobs_finished"
-"""PostgreSQL channel told, in the finishing transaction, the id of every job that finished
-(succeeded, failed or cancelled): `?wait=` result requests listen on it."""
-
-# On SQLite there is no NOTIFY: a worker thread in the process that enqueued is woken through
-# this event; workers in other processes by the doorbell, or else by polling.
-local_enqueue_signal = threading.Event()
-
-# Callbacks given the ids of jobs that finished in this process (SQLite), after the commit.
-_local_finish_subscribers: set[Callable[[list[str]], None]] = set()
-_subscribers_lock = threading.Lock()
-
-_AFTER_COMMIT = "roadlink_after_commit"
-
-
-def subscribe_local_finishes(callback: Callable[[list[str]], None]) -> None:
-    """Call `callback` with job ids whenever jobs finish in a transaction of this process."""
-    with _subscribers_lock:
-        _local_finish_subscribers.add(callback)
-
-
-def unsubscribe_local_finishes(callback: Callable[[list[str]], None]) -> None:
-    """Stop calling a callback given to subscribe_local_finishes."""
-    with _subscribers_lock:
-        _local_finish_subscribers.discard(callback)
-
-
-def _is_postgres(session: Session) -> bool:
-    return session.get_bind().dialect.name == "postgresql"
+"""Channel told, when the transaction commits, the id of every job that finished (succeeded,
+failed or cancelled): `?wait=` result requests listen on it."""
 
 
 def _clock(session: Session, now: datetime | None) -> Any:
     """The time a transition is stamped with: `now` when the caller gives one (tests), else the
-    database's clock on PostgreSQL (one clock for every host), else this host's clock."""
-    if now is not None:
-        return now
-    return func.now() if _is_postgres(session) else utcnow()
-
-
-def _after_commit(session: Session, action: Callable[[], None]) -> None:
-    """Run `action` once the session's transaction commits (never if it rolls back)."""
-    session.info.setdefault(_AFTER_COMMIT, []).append(action)
-
-
-@event.listens_for(Session, "after_commit")
-def _run_after_commit(session: Session) -> None:
-    for action in session.info.pop(_AFTER_COMMIT, []):
-        action()
-
-
-@event.listens_for(Session, "after_soft_rollback")
-def _drop_after_rollback(session: Session, _previous_transaction: Any) -> None:
-    session.info.pop(_AFTER_COMMIT, None)
+    driver's clock (the database's on PostgreSQL, one for every host; this host's on SQLite)."""
+    return driver_of(session).clock() if now is None else now
 
 
 def _announce_runnable(session: Session, job_id: uuid.UUID | None) -> None:
     """Wake idle workers when this transaction commits."""
-    if _is_postgres(session):
-        session.execute(
-            text("SELECT pg_notify(:channel, :id)"),
-            {"channel": NOTIFY_CHANNEL, "id": "" if job_id is None else str(job_id)},
-        )
-    else:
-        database_url = _database_url(session)
-
-        def wake_workers() -> None:
-            local_enqueue_signal.set()
-            doorbell.ring(database_url, doorbell.QUEUED)
-
-        _after_commit(session, wake_workers)
+    payload = "" if job_id is None else str(job_id)
+    driver_of(session).notify(session, NOTIFY_CHANNEL, [payload])
 
 
 def _announce_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> None:
     """Tell result waiters that these jobs finished, when this transaction commits."""
     ids = [str(j) for j in job_ids]
-    if not ids:
-        return
-    if _is_postgres(session):
-        # One notification per job: a payload is limited to 8000 bytes.
-        for job_id in ids:
-            session.execute(
-                text("SELECT pg_notify(:channel, :id)"),
-                {"channel": FINISHED_CHANNEL, "id": job_id},
-            )
-        return
-
-    def tell_subscribers() -> None:
-        with _subscribers_lock:
-            subscribers = list(_local_finish_subscribers)
-        for callback in subscribers:
-            callback(ids)
-        doorbell.ring(database_url, doorbell.FINISHED, "\n".join(ids).encode())
-
-    database_url = _database_url(session)
-    _after_commit(session, tell_subscribers)
-
-
-def _database_url(session: Session) -> str:
-    return session.get_bind().engine.url.render_as_string(hide_password=False)
+    if ids:
+        driver_of(session).notify(session, FINISHED_CHANNEL, ids)
 
 
 @dataclass(frozen=True)
@@ -170,9 +88,8 @@ def enqueue_job(
         state=JobState.QUEUED,
         max_attempts=max_attempts,
     )
-    if _is_postgres(session):
-        # Runnable from the database's now(), the clock claims compare with, not this host's.
-        job.created_at = job.run_after = func.now()
+    # Runnable from the clock claims compare with (on PostgreSQL the database's, not this host's).
+    job.created_at = job.run_after = driver_of(session).clock()
     session.add(job)
     session.flush()
     _announce_runnable(session, job.id)
@@ -192,19 +109,19 @@ def claim_next_job(
     """Atomically take the oldest runnable queued job, or None when there is none.
 
     One statement on both databases: `UPDATE ... WHERE id = (SELECT ... LIMIT 1) RETURNING`.
-    PostgreSQL adds FOR UPDATE SKIP LOCKED, so concurrent workers each take a different job
-    without waiting; SQLite serialises writers, so the statement is atomic as it stands.
+    The driver locks the candidate: PostgreSQL adds FOR UPDATE SKIP LOCKED, so concurrent
+    workers each take a different job without waiting; SQLite serialises writers, so the
+    statement is atomic as it stands.
     The sub-select is compared with `=`, not `IN`: PostgreSQL may run an `IN (...)` sub-select
     once per candidate row, and with SKIP LOCKED each run finds another job, so one claim
     would take them all (the `=` form is evaluated once).
     """
     now = _clock(session, now)
-    candidate = (
+    candidate = driver_of(session).lock_for_claim(
         select(Job.id)
         .where(Job.state == JobState.QUEUED, Job.run_after <= now)
         .order_by(Job.run_after, Job.created_at)
         .limit(1)
-        .with_for_update(skip_locked=True)
     )
     statement = (
         update(Job)

@@ -1,6 +1,7 @@
 """How an idle worker learns that a job was enqueued, and how a result request learns that its
-job finished: PostgreSQL LISTEN, SQLite's doorbell (`roadlink.queue.doorbell`), in-process
-signals, or polling."""
+job finished: by listening on the queue's channels through the database's driver
+(`roadlink.db.drivers`: PostgreSQL LISTEN, SQLite's in-process news and doorbell), and by
+polling, which covers whatever a listener misses."""
 
 from __future__ import annotations
 
@@ -8,19 +9,12 @@ import asyncio
 import contextlib
 import logging
 import threading
+import time
 import uuid
-from typing import Any, Protocol
+from typing import Protocol
 
-from sqlalchemy import make_url
-
-from roadlink.queue import doorbell
-from roadlink.queue.transitions import (
-    FINISHED_CHANNEL,
-    NOTIFY_CHANNEL,
-    local_enqueue_signal,
-    subscribe_local_finishes,
-    unsubscribe_local_finishes,
-)
+from roadlink.db.drivers import Listener, driver_for
+from roadlink.queue.transitions import FINISHED_CHANNEL, NOTIFY_CHANNEL
 
 log = logging.getLogger(__name__)
 
@@ -33,130 +27,63 @@ class Wakeup(Protocol):
         """Release what the wake-up holds (e.g. its connection)."""
 
 
-class PollingWakeup:
-    """SQLite: woken at once by an enqueue in this process or, through the database file's
-    doorbell, in another process; else after the poll interval."""
+class ListeningWakeup:
+    """Woken by the news of an enqueue, else after the poll interval.
 
-    def __init__(self, database_url: str = "") -> None:
-        self._doorbell = doorbell.listen(database_url, doorbell.QUEUED) if database_url else None
+    If the listener fails (the database may be restarting), the worker polls, and the listener
+    reconnects at the next wait."""
 
-    def wait(self, timeout: float) -> None:
-        if self._doorbell is None:
-            if local_enqueue_signal.wait(timeout):
-                local_enqueue_signal.clear()
-            return
-        # An enqueue in this process rings the doorbell too; the event covers one that
-        # happened before this wait began.
-        if local_enqueue_signal.is_set():
-            local_enqueue_signal.clear()
-            self._doorbell.drain()
-            return
-        if self._doorbell.wait(timeout):
-            local_enqueue_signal.clear()
-
-    def close(self) -> None:
-        if self._doorbell is not None:
-            self._doorbell.close()
-            self._doorbell = None
-
-
-class PostgresWakeup:
-    """PostgreSQL: LISTEN on the queue channel on a connection of its own.
-
-    A NOTIFY is sent in the enqueueing transaction, so it arrives the moment the job commits.
-    If the listening connection breaks, the worker still polls, and the connection is reopened.
-    """
-
-    def __init__(self, database_url: str) -> None:
-        self._conninfo = libpq_conninfo(database_url)
-        self._connection: Any = None
-
-    def _listen(self) -> Any:
-        import psycopg  # only needed on PostgreSQL
-
-        if self._connection is None or self._connection.closed:
-            self._connection = psycopg.connect(self._conninfo, autocommit=True)
-            self._connection.execute(f"LISTEN {NOTIFY_CHANNEL}")
-        return self._connection
+    def __init__(self, listener: Listener) -> None:
+        self._listener = listener
 
     def wait(self, timeout: float) -> None:
         try:
-            connection = self._listen()
-            for _ in connection.notifies(timeout=timeout, stop_after=1):
-                break
-        except Exception as exc:  # the database may be restarting: poll until it is back
+            self._listener.wait(timeout)
+        except Exception as exc:
             log.warning("LISTEN connection failed (%s); polling instead", exc)
-            self.close()
-            local_enqueue_signal.wait(timeout)
+            time.sleep(timeout)
 
     def close(self) -> None:
-        if self._connection is not None:
-            with contextlib.suppress(Exception):
-                self._connection.close()
-            self._connection = None
+        self._listener.close()
 
 
 def make_wakeup(database_url: str) -> Wakeup:
-    """The wake-up suited to the database."""
-    if database_url.startswith("postgresql"):
-        return PostgresWakeup(database_url)
-    return PollingWakeup(database_url)
-
-
-def libpq_conninfo(database_url: str) -> str:
-    """The libpq URL psycopg connects with, from a SQLAlchemy URL."""
-    url = make_url(database_url).set(drivername="postgresql")
-    return url.render_as_string(hide_password=False)
+    """An idle worker's wake-up on this database."""
+    return ListeningWakeup(driver_for(database_url).listen(NOTIFY_CHANNEL))
 
 
 class FinishedJobs:
     """Wakes `?wait=` result requests when their job finishes.
 
-    On PostgreSQL one thread per API process LISTENs on the finished-jobs channel (the NOTIFY is
-    sent in the finishing transaction) and wakes the requests waiting for that job. On SQLite it
-    hears of jobs finished by workers in this process, and of those finished in other processes
-    through the database file's doorbell (a thread reads it); a ring may be lost, so requests
-    poll as well (`listening` says whether notifications can be relied on).
+    One thread per API process listens on the finished-jobs channel and wakes the requests
+    waiting for the jobs it hears of. On PostgreSQL every finish is heard while the listener is
+    connected; on SQLite a ring from another process may be lost, so requests poll as well
+    (`listening` says whether notifications can be relied on).
     """
 
     RECONNECT_SECONDS = 1.0
 
     def __init__(self, database_url: str) -> None:
-        self._postgres = database_url.startswith("postgresql")
-        self._database_url = database_url
-        self._conninfo = libpq_conninfo(database_url) if self._postgres else ""
+        self._driver = driver_for(database_url)
         self._waiters: dict[str, set[tuple[asyncio.AbstractEventLoop, asyncio.Event]]] = {}
         self._lock = threading.Lock()
         self._closing = threading.Event()
-        self._connected = threading.Event()
         self._thread: threading.Thread | None = None
-        self._doorbell: doorbell.Listener | None = None
-        if not self._postgres:
-            subscribe_local_finishes(self._wake)
+        self._listener: Listener | None = None
 
     @property
     def listening(self) -> bool:
         """True when every finish will be heard (PostgreSQL, listener connected)."""
-        return self._connected.is_set()
+        return self._listener is not None and self._listener.hears_everything
 
     def start(self) -> None:
-        """Start listening: on PostgreSQL's channel, or on the SQLite file's doorbell."""
+        """Start listening."""
         if self._thread is not None:
             return
-        if self._postgres:
-            self._thread = threading.Thread(
-                target=self._listen, name="roadlink-finished-jobs", daemon=True
-            )
-        else:
-            self._doorbell = doorbell.listen(self._database_url, doorbell.FINISHED)
-            if self._doorbell is None:
-                return
-            self._thread = threading.Thread(
-                target=self._hear_doorbell,
-                args=(self._doorbell,),
-                name="roadlink-finished-jobs",
-                daemon=True,
-            )
+        self._listener = self._driver.listen(FINISHED_CHANNEL)
+        self._thread = threading.Thread(
+            target=self._hear, args=(self._listener,), name="roadlink-finished-jobs", daemon=True
+        )
         self._thread.start()
 
     def close(self) -> None:
@@ -165,11 +92,9 @@ class FinishedJobs:
         if self._thread is not None:
             self._thread.join(5.0)
             self._thread = None
-        if self._doorbell is not None:
-            self._doorbell.close()
-            self._doorbell = None
-        if not self._postgres:
-            unsubscribe_local_finishes(self._wake)
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
 
     def watch(self, job_id: uuid.UUID) -> asyncio.Event:
         """An event set when the job finishes; register before reading the job's state, so that
@@ -197,28 +122,14 @@ class FinishedJobs:
             with contextlib.suppress(RuntimeError):  # that request's loop has closed
                 loop.call_soon_threadsafe(event.set)
 
-    def _hear_doorbell(self, listener: doorbell.Listener) -> None:
-        while not self._closing.is_set():
-            # The timeout only bounds how long close() waits for this thread.
-            messages = listener.wait(0.5)
-            job_ids = [j for m in messages for j in m.decode(errors="replace").split("\n") if j]
-            if job_ids:
-                self._wake(job_ids)
-
-    def _listen(self) -> None:
-        import psycopg  # only needed on PostgreSQL
-
+    def _hear(self, listener: Listener) -> None:
         while not self._closing.is_set():
             try:
-                with psycopg.connect(self._conninfo, autocommit=True) as connection:
-                    connection.execute(f"LISTEN {FINISHED_CHANNEL}")
-                    self._connected.set()
-                    while not self._closing.is_set():
-                        # The timeout only bounds how long close() waits for this thread.
-                        for notify in connection.notifies(timeout=0.5):
-                            self._wake([notify.payload])
+                # The timeout only bounds how long close() waits for this thread.
+                job_ids = listener.wait(0.5)
             except Exception as exc:  # the database may be restarting: requests poll meanwhile
-                self._connected.clear()
                 log.warning("LISTEN for finished jobs failed (%s); retrying", exc)
                 self._closing.wait(self.RECONNECT_SECONDS)
-        self._connected.clear()
+                continue
+            if job_ids:
+                self._wake(job_ids)

@@ -12,11 +12,12 @@ from sqlalchemy.orm import Session
 
 from roadlink.association.detections import Detections
 from roadlink.db import repository
+from roadlink.db.idempotency_records import find_batch_idempotency_key
 from roadlink.db.json_columns import BatchSelection
 from roadlink.db.models import Batch, Deployment, Job
 from roadlink.queue.transitions import enqueue_job
 from roadlink.services.deployments import require_deployment
-from roadlink.services.idempotency import first_commit_wins, replayed_batch
+from roadlink.services.idempotency import IdempotentRequest, Recorded, create_once
 from roadlink.services.jobs import AssociationAsked, checked_params
 from roadlink.settings import Settings
 
@@ -39,39 +40,35 @@ def store_batch_once(
     deployment_id: uuid.UUID,
     parse: Callable[[Deployment], ParsedBatch],
     answer: Callable[[Batch], Answer],
-    idempotency_key: str | None,
-    digest: str,
+    idempotent: IdempotentRequest | None,
 ) -> tuple[Answer, bool]:
-    """Parse and store a batch of the deployment and commit; with a key used before, store
-    nothing. Returns the batch's `answer` (taken inside the transaction) and whether it replays
-    an earlier request's."""
+    """Parse and store a batch of the deployment and commit; with a key its sender used on this
+    deployment before, store nothing. Returns the batch's `answer` (taken inside the
+    transaction) and whether it replays an earlier request's."""
     deployment = require_deployment(session, deployment_id)
 
-    def earlier() -> tuple[Answer, bool] | None:
-        found = None
-        if idempotency_key is not None:
-            found = repository.find_batch_by_idempotency_key(
-                session, deployment_id=deployment_id, idempotency_key=idempotency_key
-            )
-        return None if found is None else (answer(replayed_batch(found, digest)), True)
+    def find(request: IdempotentRequest) -> Recorded[Answer] | None:
+        batch = find_batch_idempotency_key(
+            session,
+            deployment_id=deployment_id,
+            principal=request.principal,
+            idempotency_key=request.key,
+        )
+        if batch is None:
+            return None
+        return Recorded(batch.request_sha256 or "", f"batch {batch.id}", lambda: answer(batch))
 
-    replayed = earlier()
-    if replayed is not None:
-        return replayed
-    parsed = parse(deployment)
-
-    def write() -> tuple[Answer, bool]:
+    def create() -> Answer:
         batch = store_batch(
             session,
             settings=settings,
             deployment_id=deployment_id,
-            batch=parsed,
-            idempotency_key=idempotency_key,
-            request_sha256=digest,
+            batch=parse(deployment),
+            idempotent=idempotent,
         )
-        return answer(batch), False
+        return answer(batch)
 
-    return first_commit_wins(session, write, earlier)
+    return create_once(session, idempotent, find=find, create=create, new_thing="new detections")
 
 
 def store_batch(
@@ -80,8 +77,7 @@ def store_batch(
     settings: Settings,
     deployment_id: uuid.UUID,
     batch: ParsedBatch,
-    idempotency_key: str | None = None,
-    request_sha256: str | None = None,
+    idempotent: IdempotentRequest | None = None,
 ) -> Batch:
     """Insert the batch and, when asked, its job, in the caller's transaction."""
     batch_id = uuid.uuid4()
@@ -103,8 +99,9 @@ def store_batch(
         deployment_id=deployment_id,
         detections=batch.detections,
         source=batch.source,
-        idempotency_key=idempotency_key,
-        request_sha256=request_sha256,
+        idempotency_key=None if idempotent is None else idempotent.key,
+        idempotency_principal=None if idempotent is None else idempotent.principal,
+        request_sha256=None if idempotent is None else idempotent.digest,
         job_id=job_id,
     )
 

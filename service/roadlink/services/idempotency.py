@@ -1,119 +1,121 @@
-"""Idempotency-Keys: a retry with the same key and the same body gets what the first request
-created and creates nothing; the same key with a different body is a 422. Concurrent copies of
-one request: the first commit wins. Keys are forgotten after ROADLINK_IDEMPOTENCY_HOURS.
+"""Idempotency-Keys, one rule for every endpoint that takes them (batches and jobs), after the
+IETF draft "The Idempotency-Key HTTP Header Field":
 
-Batch keys live on the batch row (unique per deployment); job keys in their own table (unique
-per API key, so two clients cannot collide on "1"): `db/idempotency_records.py`.
+- A key is a non-empty string of at most 200 characters (the API's header checks that).
+- Its scope is its sender and the endpoint: a key belongs to the API key that sent it (or to
+  the anonymous caller when authentication is disabled), on one endpoint (a deployment's
+  batches, or jobs). Two API keys may use "1" without meeting.
+- A retry with the same key and the same request gets what the first request created, says
+  so (`Idempotent-Replayed`), and creates nothing. The same key with another request is a 422.
+  Requests are told apart by `request_digest`: the content type and the body, JSON in a
+  canonical form (so spacing and key order do not make two requests differ).
+- Concurrent copies of one request: the first commit wins, and the others answer its replay.
+  A copy waits at the key's unique constraint until the first commits, so no copy ever sees
+  the first one in flight (the draft's 409 does not arise).
+- Keys are forgotten after ROADLINK_IDEMPOTENCY_HOURS (`forget_expired_keys`).
 
-Why batches and jobs do not share one rule for the header, the scope and the digest: each
-difference is visible to clients, and the redesign changes no response.
-- The header: on batches it has max_length=200 only (an empty key is a key), on jobs also
-  min_length=1 (an empty key is a 422); the two descriptions differ too, in openapi.json.
-- The scope: a batch key is unique per deployment, whichever API key sends it; a job key per
-  API key. One key from two API keys replays a batch but makes two jobs.
-- The digest: a batch's covers its content type and raw bytes (the CSV or JSON text as sent),
-  a job's its parsed body (`request_sha256` in `api/routers/jobs.py`), so whitespace and key order
-  tell batch retries apart, not job retries.
+Where each endpoint keeps its keys: `db/idempotency_records.py`.
 """
 
 from __future__ import annotations
 
-import uuid
+import contextlib
+import hashlib
 from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import timedelta
-from typing import TypeVar
+from typing import Generic, TypeVar
 
+import orjson
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
-from roadlink.db import repository
 from roadlink.db.engine import transaction
-from roadlink.db.idempotency_records import (
-    Forgotten,
-    find_job_idempotency_key,
-    forget_idempotency_keys,
-    record_job_idempotency_key,
-)
-from roadlink.db.models import Batch, Job, utcnow
+from roadlink.db.idempotency_records import Forgotten, forget_idempotency_keys
+from roadlink.db.models import utcnow
 from roadlink.services.problems import ProblemItem, ServiceProblem
 from roadlink.settings import Settings
 
-Written = TypeVar("Written")
-Found = TypeVar("Found")
+Created = TypeVar("Created")
 
 
-def first_commit_wins(
-    session: Session, write: Callable[[], Written], earlier: Callable[[], Found | None]
-) -> Written | Found:
-    """Write and commit; when a concurrent request with the same Idempotency-Key committed
-    first, answer what that request created instead.
+@dataclass(frozen=True)
+class IdempotentRequest:
+    """A request sent with an Idempotency-Key: the key, its sender (with the endpoint, its
+    scope), and the digest that tells a retry from another request."""
 
-    Batches and jobs alike: their keys are unique in the database, so of several requests with
-    one key sent at once, exactly one commits and the others meet the unique constraint (when
-    writing or when committing). Each of those rolls back and returns `earlier()`, the winner's
-    answer (or the 422 of a different body), as a retry after the fact would get it.
+    key: str
+    principal: str
+    digest: str
+
+
+def request_digest(content_type: str, body: bytes) -> str:
+    """The sha256 of a request's content type and body; a JSON body counts as its canonical
+    form (keys sorted, no spacing), so only what it says matters, not how it is spelled."""
+    if content_type == "application/json":
+        with contextlib.suppress(orjson.JSONDecodeError):  # not JSON after all: bytes as sent
+            body = orjson.dumps(orjson.loads(body), option=orjson.OPT_SORT_KEYS)
+    return hashlib.sha256(content_type.encode() + b"\0" + body).hexdigest()
+
+
+@dataclass(frozen=True)
+class Recorded(Generic[Created]):
+    """What an earlier request with a key created: its digest, its name in a problem
+    ("batch <id>"), and the answer it gets again."""
+
+    digest: str
+    name: str
+    answer: Callable[[], Created]
+
+
+def create_once(
+    session: Session,
+    request: IdempotentRequest | None,
+    *,
+    find: Callable[[IdempotentRequest], Recorded[Created] | None],
+    create: Callable[[], Created],
+    new_thing: str,
+) -> tuple[Created, bool]:
+    """Create and commit, unless an earlier request with this key did: then its answer again,
+    created by nobody. Returns the answer and whether it is a replay.
+
+    `find` looks the key up where its endpoint keeps them; `create` writes in `session` and
+    records the key with what it created. Of several requests with one key sent at once,
+    exactly one commits and the others meet the key's unique constraint (when writing or when
+    committing): each of those rolls back and answers the winner's replay, as a retry after the
+    fact would (or the 422 of a different body).
     """
+
+    def earlier() -> Created | None:
+        recorded = None if request is None else find(request)
+        if recorded is None:
+            return None
+        _same_request(recorded, request, new_thing)
+        return recorded.answer()
+
+    replayed = earlier()
+    if replayed is not None:
+        return replayed, True
     try:
-        written = write()
+        created = create()
         session.commit()
-        return written
+        return created, False
     except IntegrityError:
         session.rollback()
-        found = earlier()
-        if found is None:  # some other constraint: the error handler answers it
+        replayed = earlier()
+        if replayed is None:  # some other constraint: the error handler answers it
             raise
-        return found
+        return replayed, True
 
 
-def replayed_batch(batch: Batch, digest: str) -> Batch:
-    """The batch a repeated request created, or 422 if the key came with another body."""
-    _same_body(
-        batch.request_sha256, digest, batch.idempotency_key, f"batch {batch.id}", "new detections"
-    )
-    return batch
-
-
-def replayed_job(
-    session: Session, *, principal: str, idempotency_key: str, digest: str
-) -> Job | None:
-    """The job an earlier request with this key created (its state now), None if there was
-    none; 422 when the key came with another body."""
-    earlier = find_job_idempotency_key(
-        session, principal=principal, idempotency_key=idempotency_key
-    )
-    if earlier is None:
-        return None
-    _same_body(
-        earlier.request_sha256, digest, idempotency_key, f"job {earlier.job_id}", "a new job"
-    )
-    # None when the job is gone: the record is deleted with its job (ON DELETE CASCADE).
-    return repository.get_job(session, job_id=earlier.job_id)
-
-
-def _same_body(
-    recorded: str | None, digest: str, idempotency_key: str | None, created: str, new_thing: str
-) -> None:
-    """422 when a key comes again with a body other than the one it was first used with."""
-    if recorded != digest:
+def _same_request(recorded: Recorded[Created], request: IdempotentRequest | None, new: str) -> None:
+    """422 when a key comes again with a request other than the one it was first used with."""
+    if request is not None and recorded.digest != request.digest:
         raise ServiceProblem(
             422,
-            f"Idempotency-Key '{idempotency_key}' was used for a different request "
-            f"({created}); use a new key for {new_thing}",
+            f"Idempotency-Key '{request.key}' was used for a different request "
+            f"({recorded.name}); use a new key for {new}",
             errors=[ProblemItem(field="Idempotency-Key", message="reused with a different body")],
-        )
-
-
-def record_job_key(
-    session: Session, *, job_id: uuid.UUID, principal: str, idempotency_key: str | None, digest: str
-) -> None:
-    """Remember which job this key created, in the job's transaction."""
-    if idempotency_key is not None:
-        record_job_idempotency_key(
-            session,
-            principal=principal,
-            idempotency_key=idempotency_key,
-            request_sha256=digest,
-            job_id=job_id,
         )
 
 

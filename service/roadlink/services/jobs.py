@@ -12,11 +12,12 @@ from sqlalchemy.orm import Session
 from roadlink.association import parse_params
 from roadlink.association.associators import AssociationError
 from roadlink.db import repository
+from roadlink.db.idempotency_records import find_job_idempotency_key, record_job_idempotency_key
 from roadlink.db.json_columns import BatchSelection, Selection, WindowSelection
 from roadlink.db.models import Job
 from roadlink.queue.transitions import enqueue_job
 from roadlink.services.deployments import require_deployment
-from roadlink.services.idempotency import first_commit_wins, record_job_key, replayed_job
+from roadlink.services.idempotency import IdempotentRequest, Recorded, create_once
 from roadlink.services.problems import ProblemItem, ServiceProblem
 from roadlink.settings import Settings
 
@@ -77,30 +78,26 @@ def create_job_once(
     *,
     settings: Settings,
     asked: JobAsked,
-    principal: str,
-    idempotency_key: str | None,
-    digest: str,
+    idempotent: IdempotentRequest | None,
     answer: Callable[[Job], Answer],
 ) -> tuple[Answer, bool]:
-    """Enqueue the job asked for and commit; with a key this principal used before, enqueue
+    """Enqueue the job asked for and commit; with a key its sender used on jobs before, enqueue
     nothing. Returns the job's `answer` (taken inside the transaction) and whether it replays
     an earlier request's."""
 
-    def earlier() -> tuple[Answer, bool] | None:
-        found = None
-        if idempotency_key is not None:
-            found = replayed_job(
-                session, principal=principal, idempotency_key=idempotency_key, digest=digest
-            )
-        return None if found is None else (answer(found), True)
+    def find(request: IdempotentRequest) -> Recorded[Answer] | None:
+        record = find_job_idempotency_key(
+            session, principal=request.principal, idempotency_key=request.key
+        )
+        # The record goes with its job (ON DELETE CASCADE), so its job is there.
+        job = None if record is None else repository.get_job(session, job_id=record.job_id)
+        if record is None or job is None:
+            return None
+        return Recorded(record.request_sha256, f"job {job.id}", lambda: answer(job))
 
-    replayed = earlier()
-    if replayed is not None:
-        return replayed
-    params = checked_params(asked)
-    deployment_id, selection = resolve_selection(session, asked)
-
-    def write() -> tuple[Answer, bool]:
+    def create() -> Answer:
+        params = checked_params(asked)
+        deployment_id, selection = resolve_selection(session, asked)
         job = enqueue_job(
             session,
             deployment_id=deployment_id,
@@ -109,16 +106,17 @@ def create_job_once(
             params=params,
             max_attempts=settings.max_attempts,
         )
-        record_job_key(
-            session,
-            job_id=job.id,
-            principal=principal,
-            idempotency_key=idempotency_key,
-            digest=digest,
-        )
-        return answer(job), False
+        if idempotent is not None:
+            record_job_idempotency_key(
+                session,
+                principal=idempotent.principal,
+                idempotency_key=idempotent.key,
+                request_sha256=idempotent.digest,
+                job_id=job.id,
+            )
+        return answer(job)
 
-    return first_commit_wins(session, write, earlier)
+    return create_once(session, idempotent, find=find, create=create, new_thing="a new job")
 
 
 def resolve_selection(session: Session, asked: JobAsked) -> tuple[uuid.UUID, Selection]:

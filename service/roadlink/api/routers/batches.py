@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-import hashlib
 import uuid
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Header, Query, Request, Response
+from fastapi import APIRouter, Query, Request, Response
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem, problem_responses
+from roadlink.api.idempotency_header import IdempotencyDep, media_type
 from roadlink.api.ingest import parse_csv_batch, parse_json_batch
 from roadlink.api.schemas import AssociateRequest, BatchRead, batch_read
 from roadlink.db import repository
@@ -53,15 +53,7 @@ async def create_batch(
     response: Response,
     session: SessionDep,
     settings: SettingsDep,
-    idempotency_key: Annotated[
-        str | None,
-        Header(
-            alias="Idempotency-Key",
-            max_length=200,
-            description="Makes retries safe: a repeated request with the same key returns the "
-            "original batch; the same key with a different body is an error (422).",
-        ),
-    ] = None,
+    idempotent: IdempotencyDep,
     associator: Annotated[
         str | None,
         Query(
@@ -77,7 +69,7 @@ async def create_batch(
     `associator` query parameter with CSV), the batch's job is enqueued in the same transaction.
     """
     body = await request.body()
-    content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    content_type = media_type(request)
     if content_type not in ("application/json", "text/csv"):
         raise ApiProblem(
             415,
@@ -85,7 +77,6 @@ async def create_batch(
         )
     if not body.strip():
         raise ApiProblem(400, "the request body is empty: send detections as JSON or CSV")
-    digest = hashlib.sha256(content_type.encode() + b"\0" + body).hexdigest()
 
     def parse(deployment: Deployment) -> ParsedBatch:
         limit = settings.max_batch_detections
@@ -103,8 +94,7 @@ async def create_batch(
             deployment_id=deployment_id,
             parse=parse,
             answer=lambda batch: batch_read(batch, batch_job(session, batch)),
-            idempotency_key=idempotency_key,
-            digest=digest,
+            idempotent=idempotent,
         )
 
     result, replayed = await run_in_threadpool(work, session)

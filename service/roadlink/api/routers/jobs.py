@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import time
 import uuid
 from collections.abc import AsyncIterator
@@ -11,14 +10,14 @@ from dataclasses import asdict
 from datetime import UTC, datetime
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, FastAPI, Header, Path, Query, Request, Response
-from pydantic import BaseModel
+from fastapi import APIRouter, FastAPI, Path, Query, Request, Response
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.concurrency import run_in_threadpool
 
 from roadlink.api.auth import principal_of
 from roadlink.api.deps import SessionDep, SessionFactoryDep, SettingsDep
 from roadlink.api.errors import ApiProblem, problem_responses
+from roadlink.api.idempotency_header import IdempotencyDep
 from roadlink.api.jobresults import SucceededJobDep, unfinished_detail
 from roadlink.api.pagelinks import DEFAULT_LIFETIME_SECONDS, MAX_LIFETIME_SECONDS, page_token
 from roadlink.api.schemas import (
@@ -55,24 +54,6 @@ async def _listen_for_finished_jobs(app: FastAPI) -> AsyncIterator[None]:
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"], lifespan=_listen_for_finished_jobs)
 
-IdempotencyKeyHeader = Annotated[
-    str | None,
-    Header(
-        alias="Idempotency-Key",
-        min_length=1,
-        max_length=200,
-        description="Makes retries safe: a repeated request with the same key (from the same API "
-        "key) returns the job the first one created; the same key with a different body is an "
-        "error (422). Keys are remembered for at least 24 hours.",
-    ),
-]
-
-
-def request_sha256(body: BaseModel) -> str:
-    """A digest of the request as parsed (so whitespace or key order do not make it differ)."""
-    return hashlib.sha256(body.model_dump_json().encode()).hexdigest()
-
-
 MATRIX_CSV_EXAMPLE = (
     "target,S1_detection_id,S1_velocity,S1_timestamp,S2_detection_id,S2_velocity,S2_timestamp\n"
     "T1,d1,30.2,12.4,d2,30.5,15.7\n"
@@ -93,7 +74,7 @@ def create_job(
     response: Response,
     session: SessionDep,
     settings: SettingsDep,
-    idempotency_key: IdempotencyKeyHeader = None,
+    idempotent: IdempotencyDep,
 ) -> JobRead:
     """Associate one batch, several batches of one deployment, or a deployment's detections in
     the time window [start, end) (either end may be left open). With an Idempotency-Key, a retry
@@ -102,9 +83,7 @@ def create_job(
         session,
         settings=settings,
         asked=body,
-        principal=principal_of(request).id,
-        idempotency_key=idempotency_key,
-        digest=request_sha256(body),
+        idempotent=idempotent,
         answer=JobRead.model_validate,
     )
     if replayed:

@@ -1,11 +1,12 @@
-"""Wake-ups between the processes that share one SQLite file: SQLite's LISTEN/NOTIFY.
+"""Wake-ups between the processes that share one SQLite file: SQLite's LISTEN/NOTIFY, used
+by the SQLite driver (`roadlink.db.drivers.sqlite`).
 
 SQLite is embedded, so every process using a database file runs on one host. Each listening
 process binds a Unix datagram socket in a directory named after the database file (one
-directory per channel: jobs queued, jobs finished); a ring sends a datagram to every socket
-there. A ring is a hint, never data: the listener re-reads the database, and keeps polling as
-before, so a lost ring (a full socket buffer, a directory it may not write) only costs the poll
-interval it would have waited anyway. A socket left behind by a process that died is removed by
+directory per channel, named as the channel); a ring sends a datagram to every socket there.
+A ring is a hint, never data: the listener re-reads the database, and keeps polling as before,
+so a lost ring (a full socket buffer, a directory it may not write) only costs the poll interval
+it would have waited anyway. A socket left behind by a process that died is removed by
 the next ring that finds nobody listening on it.
 """
 
@@ -24,12 +25,6 @@ from pathlib import Path
 from sqlalchemy import make_url
 
 log = logging.getLogger(__name__)
-
-QUEUED = "queued"
-"""Channel rung after a job becomes runnable (its enqueue committed)."""
-
-FINISHED = "finished"
-"""Channel rung, with the job ids, after jobs finished (their transition committed)."""
 
 MAX_DATAGRAM_BYTES = 60_000
 

@@ -1,0 +1,95 @@
+"""The one place that knows which database is in use: a driver per database (as procrastinate
+has one connector per driver), chosen once from the URL. Everything else asks the driver.
+
+A driver owns what differs between SQLite and PostgreSQL:
+- the engine: connection setup (SQLite's PRAGMAs, PostgreSQL's pre-ping) and fault handling;
+- the clock that decides who may run a job (`clock`);
+- how a claim locks its candidate (`lock_for_claim`: SKIP LOCKED on PostgreSQL);
+- notifications sent by a transaction, delivered at its commit and never on rollback
+  (`notify`), and listening for them (`listen`): PostgreSQL's NOTIFY and LISTEN; on SQLite,
+  in-process delivery after the commit plus the database file's doorbell for other processes;
+- migrating (`migrations/env.py`): whether Alembic rebuilds tables to alter them, what a
+  migration run needs around it (`migrating`) and inside its transaction (`lock_migrations`).
+"""
+
+from __future__ import annotations
+
+import weakref
+from collections.abc import Sequence
+from contextlib import AbstractContextManager
+from typing import Any, Protocol, TypeVar
+
+from sqlalchemy import Connection, Engine, Select, make_url
+from sqlalchemy.orm import Session
+
+from roadlink.db.drivers.postgres import PostgresDriver
+from roadlink.db.drivers.sqlite import SqliteDriver
+
+Query = TypeVar("Query", bound=Select[Any])
+
+
+class Listener(Protocol):
+    """One listener on one channel."""
+
+    @property
+    def hears_everything(self) -> bool:
+        """True while no notification can be missed (PostgreSQL, connected); else a listener
+        may miss some, and its user polls as well."""
+
+    def wait(self, timeout: float) -> list[str] | None:
+        """The payloads heard (possibly none: a wake-up without news), or None when `timeout`
+        seconds passed without any. PostgreSQL: raises when the connection fails (it is
+        reopened at the next wait)."""
+
+    def close(self) -> None:
+        """Stop listening and release what the listener holds."""
+
+
+class Driver(Protocol):
+    """What the service asks of the database it runs on."""
+
+    name: str
+
+    def make_engine(self, database_url: str, **kwargs: Any) -> Engine:
+        """An engine for `database_url`, set up for this database."""
+
+    def clock(self) -> Any:
+        """The time queue transitions are stamped with: a SQL expression or a datetime."""
+
+    def lock_for_claim(self, query: Query) -> Query:
+        """The claim's candidate query, locked so that concurrent claims take different jobs."""
+
+    def notify(self, session: Session, channel: str, payloads: Sequence[str]) -> None:
+        """Tell the listeners of `channel` each payload when this transaction commits."""
+
+    def listen(self, channel: str) -> Listener:
+        """A listener on `channel` of this database."""
+
+    rebuilds_tables: bool
+    """Whether Alembic alters a table by rebuilding it (its batch mode)."""
+
+    def migrating(self, connection: Connection) -> AbstractContextManager[None]:
+        """Around a migration run on `connection`, outside its transaction."""
+
+    def lock_migrations(self, connection: Connection) -> None:
+        """In the migration's transaction: wait while another process migrates."""
+
+
+def driver_for(database_url: str) -> Driver:
+    """The driver of the database at `database_url`."""
+    if make_url(database_url).get_backend_name() == "postgresql":
+        return PostgresDriver(database_url)
+    return SqliteDriver(database_url)
+
+
+_engine_drivers: weakref.WeakKeyDictionary[Engine, Driver] = weakref.WeakKeyDictionary()
+
+
+def driver_of(session: Session) -> Driver:
+    """The driver of the engine the session is bound to (chosen once per engine)."""
+    engine = session.get_bind().engine
+    driver = _engine_drivers.get(engine)
+    if driver is None:
+        driver = driver_for(engine.url.render_as_string(hide_password=False))
+        _engine_drivers[engine] = driver
+    return driver

@@ -1,0 +1,105 @@
+"""PostgreSQL, for scaling out: workers and API replicas on several hosts.
+
+Notifications are NOTIFY, sent in the transaction that makes the news true (so delivered at its
+commit, never on rollback), heard by LISTEN on a connection of the listener's own.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+from sqlalchemy import Connection, Engine, create_engine, func, make_url, text
+from sqlalchemy.orm import Session
+
+# Any constant shared by every roadlink process: the advisory lock serialising migrations.
+MIGRATION_LOCK_KEY = 0x726F61646C696E6B  # "roadlink"
+
+
+class PostgresDriver:
+    """PostgreSQL: the database's clock; claims skip rows other workers have locked; NOTIFY."""
+
+    name = "postgresql"
+
+    def __init__(self, database_url: str) -> None:
+        self._conninfo = libpq_conninfo(database_url)
+
+    def make_engine(self, database_url: str, **kwargs: Any) -> Engine:
+        return create_engine(database_url, pool_pre_ping=True, **kwargs)
+
+    def clock(self) -> Any:
+        # One clock for every host: the hosts' own clocks drift apart.
+        return func.now()
+
+    def lock_for_claim(self, query: Any) -> Any:
+        # Concurrent workers each take a different job without waiting for each other.
+        return query.with_for_update(skip_locked=True)
+
+    def notify(self, session: Session, channel: str, payloads: Sequence[str]) -> None:
+        # One notification per payload: a payload is limited to 8000 bytes.
+        for payload in payloads:
+            session.execute(
+                text("SELECT pg_notify(:channel, :payload)"),
+                {"channel": channel, "payload": payload},
+            )
+
+    def listen(self, channel: str) -> PostgresListener:
+        return PostgresListener(self._conninfo, channel)
+
+    rebuilds_tables = False
+
+    @contextlib.contextmanager
+    def migrating(self, connection: Connection) -> Iterator[None]:
+        yield
+
+    def lock_migrations(self, connection: Connection) -> None:
+        # Several API replicas may start at once: one migrates, the others wait.
+        connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": MIGRATION_LOCK_KEY})
+
+
+def libpq_conninfo(database_url: str) -> str:
+    """The libpq URL psycopg connects with, from a SQLAlchemy URL."""
+    url = make_url(database_url).set(drivername="postgresql")
+    return url.render_as_string(hide_password=False)
+
+
+class PostgresListener:
+    """LISTEN on a connection of its own, opened at the first wait and reopened after a failure."""
+
+    def __init__(self, conninfo: str, channel: str) -> None:
+        self._conninfo = conninfo
+        self._channel = channel
+        self._connection: Any = None
+
+    @property
+    def hears_everything(self) -> bool:
+        return self._connection is not None and not self._connection.closed
+
+    def wait(self, timeout: float) -> list[str] | None:
+        try:
+            connection = self._connect()
+            payloads = [n.payload for n in connection.notifies(timeout=timeout, stop_after=1)]
+        except Exception:
+            self.close()
+            raise
+        return payloads or None
+
+    def _connect(self) -> Any:
+        import psycopg  # only needed on PostgreSQL
+
+        if self._connection is None or self._connection.closed:
+            connection = psycopg.connect(self._conninfo, autocommit=True)
+            try:
+                connection.execute(f"LISTEN {self._channel}")
+            except Exception:
+                connection.close()
+                raise
+            self._connection = connection  # listening from now on
+        return self._connection
+
+    def close(self) -> None:
+        if self._connection is not None:
+            with contextlib.suppress(Exception):
+                self._connection.close()
+            self._connection = None

@@ -1,0 +1,54 @@
+"""Choosing the driver, and the contract every driver keeps: news sent by a transaction is
+heard at its commit, never when it rolls back (`roadlink.db.drivers`)."""
+
+from __future__ import annotations
+
+from sqlalchemy import Engine
+from sqlalchemy.orm import Session
+
+from roadlink.db.drivers import driver_for, driver_of
+from roadlink.db.drivers.postgres import PostgresDriver
+from roadlink.db.drivers.sqlite import SqliteDriver
+
+
+def test_the_driver_is_chosen_from_the_url() -> None:
+    assert isinstance(driver_for("sqlite:///x.db"), SqliteDriver)
+    assert isinstance(driver_for("sqlite://"), SqliteDriver)
+    assert isinstance(driver_for("postgresql+psycopg://u:p@h:5/db"), PostgresDriver)
+    assert isinstance(driver_for("postgresql://u@h/db"), PostgresDriver)
+
+
+def test_a_session_asks_its_engines_driver_once(engine: Engine) -> None:
+    with Session(engine) as first, Session(engine) as second:
+        assert driver_of(first) is driver_of(second)
+        assert driver_of(first).name == engine.dialect.name
+
+
+def test_news_is_heard_at_commit_never_on_rollback(engine: Engine, database_url: str) -> None:
+    driver = driver_for(database_url)
+    listener = driver.listen("roadlink_test")
+    try:
+        listener.wait(0.0)  # PostgreSQL: the LISTEN connection opens at the first wait
+        with Session(engine) as session, session.begin():
+            driver.notify(session, "roadlink_test", ["a", "b"])
+            session.rollback()
+        assert listener.wait(0.3) is None
+        with Session(engine) as session, session.begin():
+            driver.notify(session, "roadlink_test", ["a", "b"])
+        heard = listener.wait(5.0) or []
+        heard += listener.wait(0.3) or []  # PostgreSQL: one notification per wait
+        assert sorted(heard) == ["a", "b"]
+    finally:
+        listener.close()
+
+
+def test_another_channel_hears_nothing(engine: Engine, database_url: str) -> None:
+    driver = driver_for(database_url)
+    other = driver.listen("roadlink_other")
+    try:
+        other.wait(0.0)
+        with Session(engine) as session, session.begin():
+            driver.notify(session, "roadlink_test", ["a"])
+        assert other.wait(0.3) is None
+    finally:
+        other.close()
