@@ -45,6 +45,28 @@ def test_a_simulation_makes_a_labelled_batch_and_can_associate_it(
     assert result["n_targets"] == 6 and result["metrics"] is not None
 
 
+def test_a_simulation_with_features_stores_them_for_its_job(
+    client: TestClient, worker: Worker, deployment: dict[str, Any]
+) -> None:
+    created = client.post(
+        "/v1/simulations",
+        json={
+            "deployment_id": deployment["id"],
+            "preset": "small",
+            "seed": 4,
+            "config": {"lanes": 2, "vehicle_lengths": True, "vehicle_classes": True},
+            "associate": {"associator": "kmeans++", "params": {"use_length": True}},
+        },
+    )
+    assert created.status_code == 201, created.text
+    assert worker.run_once()
+    job = client.get(f"/v1/jobs/{created.json()['job']['id']}").json()
+    assert job["state"] == "succeeded", job
+    result = client.get(f"/v1/jobs/{created.json()['job']['id']}/result").json()
+    rows = [d for t in result["targets"] for d in t["detections"]]
+    assert all(d["lane"] in (0, 1) and d["length"] > 0 and d["vehicle_class"] for d in rows)
+
+
 def test_a_simulation_uses_the_deployments_declared_sensors(
     client: TestClient, worker: Worker
 ) -> None:
