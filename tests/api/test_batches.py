@@ -97,6 +97,11 @@ def test_csv_problems_name_the_row(
         422,
     )
     assert problem["errors"][0]["field"] == "position"
+    # An unterminated quote in the header (found by schemathesis: it was a 500).
+    problem = assert_problem(
+        client.post(url, content='"\u00ef'.encode(), headers={"content-type": "text/csv"}), 422
+    )
+    assert "the header is not valid CSV" in problem["errors"][0]["message"]
     assert _counts(engine) == (0, 0, 0)
 
 

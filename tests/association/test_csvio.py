@@ -114,3 +114,8 @@ def test_a_bad_feature_cell_names_row_and_field():
     with pytest.raises(DetectionError) as excinfo:
         read_detections_csv(text)
     assert [(p.row, p.field) for p in excinfo.value.problems] == [(2, "lane"), (2, "length")]
+
+
+def test_a_header_that_is_not_valid_csv_is_a_problem_not_a_crash():
+    with pytest.raises(DetectionError, match="the header is not valid CSV"):
+        read_detections_csv('"\u00ef')

@@ -65,7 +65,10 @@ def read_csv_columns(text: str, max_rows: int | None = None) -> dict[str, list[s
     the file.
     """
     reader = csv.reader(io.StringIO(text.lstrip("\ufeff")), strict=True)
-    header = next(reader, None)
+    try:
+        header = next(reader, None)
+    except csv.Error as exc:  # an unterminated quote in the header, say
+        raise DetectionError([Problem(None, None, f"the header is not valid CSV: {exc}")]) from None
     if header is None or not any(h.strip() for h in header):
         raise DetectionError([Problem(None, None, "the CSV is empty: a header row is required")])
     names = [h.strip().lower() for h in header]
