@@ -11,7 +11,7 @@ def test_worker_takes_its_process_count_from_roadlink_workers(tmp_path):
     env = {"ROADLINK_DATABASE_URL": f"sqlite:///{tmp_path / 'w.db'}", "ROADLINK_WORKERS": "0"}
     result = runner.invoke(app, ["worker"], env=env)
     assert result.exit_code == 2
-    assert "ROADLINK_WORKERS" in result.stderr
+    assert "needs at least one worker (ROADLINK_WORKERS)" in result.stderr
 
 
 def test_worker_option_is_checked_and_the_error_names_it():
