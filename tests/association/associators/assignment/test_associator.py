@@ -235,7 +235,7 @@ def test_sparse_matching_terminates_on_a_block_that_made_lapjvsp_cycle():
     # A dense block of SUMO bottleneck traffic (174 x 186 nodes, 8003 edges) on which scipy's
     # LAPJVsp looped forever with the raw float costs. It runs in a child process so that a
     # regression fails this test instead of hanging the suite.
-    data = Path(__file__).parents[1] / "data" / "lapjvsp_cycle.npz"
+    data = Path(__file__).parents[3] / "data" / "lapjvsp_cycle.npz"
     script = (
         "import numpy as np, sys\n"
         "from roadlink.association.associators.assignment.matching import _match_block\n"
@@ -411,7 +411,7 @@ def test_the_result_reports_the_parameters_it_ran_with_next_to_those_asked_for()
 def test_a_deployment_timing_in_hours_is_grouped_as_well_as_one_timing_in_seconds():
     # Dense SUMO traffic (committed seed-0 case): 95.2% in seconds; in km, km/h and hours
     # measured 91.4% (16% when the time-unit parameters kept their seconds-sized defaults).
-    committed = Path(__file__).parents[1] / "data" / "sumo" / "sumo-dense.csv"
+    committed = Path(__file__).parents[3] / "data" / "sumo" / "sumo-dense.csv"
     d = read_detections_csv(committed.read_text())
     result = associate(in_hours(d), "assignment")
     assert result.metrics is not None and result.metrics.accuracy >= 0.88
@@ -421,7 +421,7 @@ def test_no_track_crosses_a_gap_faster_than_its_sensors_ever_measured():
     # Committed SUMO bottleneck case (seed 0): in the queue the learned spreads are wide and the
     # tails heavy, and before this bound four links crossed 250 m in 0.4 s or less, one of them
     # backwards in time (a vehicle at the first sensor tied to another seen 0.7 s before it).
-    committed = Path(__file__).parents[1] / "data" / "sumo" / "sumo-bottleneck.csv"
+    committed = Path(__file__).parents[3] / "data" / "sumo" / "sumo-bottleneck.csv"
     d = read_detections_csv(committed.read_text())
     groups = associate(d, "assignment").groups
     order = np.lexsort((d.timestamp, d.position, groups))

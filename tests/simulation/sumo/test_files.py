@@ -31,8 +31,8 @@ from roadlink.simulation.sumo import (
     with_detector_faults,
 )
 
-DATA = Path(__file__).parent / "data"
-COMMITTED = Path(__file__).parents[1] / "data" / "sumo"
+DATA = Path(__file__).parents[1] / "data"
+COMMITTED = Path(__file__).parents[2] / "data" / "sumo"
 
 # `assignment`'s accuracy on the committed seed-0 cases (benchmarks/sumo_accuracy.py measures
 # them over more seeds), less a margin of 3 points: the test catches a regression, not a wobble.
