@@ -1,10 +1,17 @@
-"""`result_from_dict` rebuilds the result `to_dict` wrote, with labels given back by id."""
+"""The result (`association/result.py`): its document and target x sensor CSV, detector features
+carried back per detection and summarised per target when the input reports them (without them
+the result is exactly what it was before features existed), and `result_from_dict`, which
+rebuilds the result `to_dict` wrote, with labels given back by id."""
 
 from __future__ import annotations
 
+import csv
+import io
 import json
+from typing import Any
 
 import numpy as np
+import pytest
 
 from roadlink.association import associate
 from roadlink.association.detections import COLUMNS, Detections
@@ -12,6 +19,88 @@ from roadlink.association.result import result_from_dict
 from roadlink.association.scores import wrongly_grouped
 from roadlink.simulation import preset, simulate
 from tests.helpers import with_features
+
+FEATURES = ("lane", "length", "vehicle_class")
+DETECTION_KEYS = {"detection_id", "sensor_id", "position", "velocity", "timestamp"}
+
+
+def _without_features(document: dict[str, Any]) -> dict[str, Any]:
+    """The document with every feature key removed, target summaries included."""
+
+    def strip(row: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in row.items() if k not in FEATURES}
+
+    targets = [
+        {**strip(t), "detections": [strip(r) for r in t["detections"]]} for t in document["targets"]
+    ]
+    return {**document, "targets": targets, "unassigned": list(map(strip, document["unassigned"]))}
+
+
+@pytest.mark.parametrize("associator", ["assignment", "kmeans++", "svm-linear"])
+def test_without_features_the_document_has_the_keys_it_always_had(associator: str) -> None:
+    d = simulate(preset("large", false_alarm_rate=0.05), seed=1).detections
+    result = associate(d, associator)
+    document = result.to_dict()
+    rows = [r for t in document["targets"] for r in t["detections"]] + document["unassigned"]
+    assert {k for r in rows for k in r} <= DETECTION_KEYS | {"link_confidence"}
+    assert {k for t in document["targets"] for k in t} <= {"target", "confidence", "detections"}
+    header = result.to_matrix_csv().splitlines()[0].split(",")
+    assert not [h for h in header if h.endswith(FEATURES)]
+
+
+@pytest.mark.parametrize(
+    ("associator", "ignoring_features"),
+    [("assignment", {"feature_weight": 0.0}), ("kmeans++", {})],
+)
+def test_features_add_keys_and_columns_and_change_nothing_else(
+    associator: str, ignoring_features: dict[str, float]
+) -> None:
+    """With the associator told to ignore the features (K-means ignores them by default): the
+    same grouping, and the same document and matrix once the feature keys and columns are taken
+    out."""
+    d = simulate(preset("large", false_alarm_rate=0.05), seed=1).detections
+    plain = associate(d, associator, ignoring_features)
+    featured = associate(with_features(d, lane_sensors=5), associator, ignoring_features)
+    assert np.array_equal(plain.groups, featured.groups)
+    assert _without_features(featured.to_dict()) == plain.to_dict()
+    matrix = list(csv.DictReader(io.StringIO(featured.to_matrix_csv())))
+    kept = [{k: v for k, v in row.items() if not k.endswith(FEATURES)} for row in matrix]
+    assert kept == list(csv.DictReader(io.StringIO(plain.to_matrix_csv())))
+
+
+def test_the_matrix_has_a_column_per_sensor_and_feature_reported() -> None:
+    d = with_features(simulate(preset("medium"), seed=3).detections, lane_sensors=2)
+    result = associate(d, "kmeans++")
+    matrix = list(csv.DictReader(io.StringIO(result.to_matrix_csv())))
+    sensors = list(dict.fromkeys(d.sensor_id[np.argsort(d.position)].tolist()))
+    for sensor in sensors:
+        assert {f"{sensor}_{name}" for name in FEATURES} <= matrix[0].keys()
+    by_id = {d.detection_id[i]: i for i in range(len(d))}
+    for row in matrix:
+        for sensor in sensors:
+            if not row[f"{sensor}_detection_id"] or ";" in row[f"{sensor}_detection_id"]:
+                continue
+            i = by_id[row[f"{sensor}_detection_id"]]
+            lane = "" if d.lane[i] < 0 else str(d.lane[i])
+            assert row[f"{sensor}_lane"] == lane  # empty beyond the sensors that report lanes
+            assert row[f"{sensor}_length"] == repr(float(d.length[i]))
+            assert row[f"{sensor}_vehicle_class"] == d.vehicle_class[i]
+    assert any(row[f"{sensors[-1]}_lane"] == "" for row in matrix)
+    assert any(row[f"{sensors[0]}_lane"] != "" for row in matrix)
+
+
+def test_a_target_takes_its_median_length_and_most_common_class() -> None:
+    d = with_features(simulate(preset("small"), seed=2).detections)
+    result = associate(d, "assignment")
+    members = result.target_members()[0]
+    d.length[members[0]] = 99.0  # one faulty loop
+    d.vehicle_class[members[:2]] = "bus"  # two of ten say bus
+    summary = result.target_features(members, d.features)
+    assert summary["length"] == float(np.median(d.length[members]))
+    assert summary["vehicle_class"] != "bus"
+    d.length[members] = np.nan
+    d.vehicle_class[members] = None
+    assert result.target_features(members, d.features) == {"length": None, "vehicle_class": None}
 
 
 def test_the_document_round_trips_and_the_labels_score_it_again() -> None:
