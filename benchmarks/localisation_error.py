@@ -1,9 +1,9 @@
 """How far the localised position is from the truth: Hermite against straight-line interpolation.
 
 For each preset, several simulated runs with ground truth (`keep_trajectories=True`); every target's
-track is built from its own true detections (the labels), so this measures interpolation alone, not
-association. The error is taken at every simulator step strictly between a target's first and last
-sensor pass. Run: `python -m benchmarks.localisation_error [--runs N]`.
+trajectory is built from its own true detections (the labels), so this measures interpolation
+alone, not association. The error is taken at every simulator step strictly between a target's
+first and last sensor pass. Run: `python -m benchmarks.localisation_error [--runs N]`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import argparse
 import numpy as np
 
 from roadlink.association.detections import FloatArray
-from roadlink.association.localisation import build_track
+from roadlink.association.localisation import build_trajectory
 from roadlink.simulation import preset, simulate
 
 
@@ -29,12 +29,12 @@ def interpolation_errors(
     hermite, linear, scale = [], [], []
     for k, truth in enumerate(sim.trajectories):
         mine = np.flatnonzero(d.target == f"A{k + 1}")
-        track = build_track(f"A{k + 1}", d.take(mine))
-        passes_t = np.array([p.timestamp for p in track.passes])
-        passes_x = np.array([p.position for p in track.passes])
-        inside = (truth.time > track.start) & (truth.time < track.end)
+        trajectory = build_trajectory(f"A{k + 1}", d.take(mine))
+        passes_t = np.array([p.timestamp for p in trajectory.passes])
+        passes_x = np.array([p.position for p in trajectory.passes])
+        inside = (truth.time > trajectory.start) & (truth.time < trajectory.end)
         t, x = truth.time[inside], truth.position[inside]
-        hermite.append(np.abs(track.positions(t) - x))
+        hermite.append(np.abs(trajectory.positions(t) - x))
         linear.append(np.abs(np.interp(t, passes_t, passes_x) - x))
         interval = np.searchsorted(passes_t, t) - 1
         gap = np.diff(passes_t)[interval]

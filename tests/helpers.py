@@ -109,3 +109,15 @@ def row_counts(engine: Engine) -> dict[str, int]:
             name: int(connection.scalar(select(func.count()).select_from(table)) or 0)
             for name, table in Base.metadata.tables.items()
         }
+
+
+def in_hours(d: Detections) -> Detections:
+    """The same detections timed in hours, with positions in km and speeds in km/h."""
+    return Detections(
+        d.position / 1000.0,
+        d.velocity * 3.6,
+        d.timestamp / 3600.0,
+        d.sensor_id,
+        d.detection_id,
+        d.target,
+    )

@@ -3,8 +3,8 @@
 Two kinds:
 
 - ``time-space`` (the default): the diagram traffic engineers read, position against time, one
-  line and colour per target (its localised track, see `roadlink.association.localisation`), the
-  detections on it, unassigned detections as black crosses.
+  line and colour per target (its localised trajectory, see `roadlink.association.localisation`),
+  the detections on it, unassigned detections as black crosses.
 - ``backprojected``: the paper's view, each detection at (back-projected time t', velocity),
   coloured by group: a good grouping shows one tight cluster per colour.
 
@@ -29,7 +29,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from roadlink.association.backprojection import backproject_times
-from roadlink.association.localisation import target_tracks
+from roadlink.association.localisation import target_trajectories
 from roadlink.association.result import AssociationResult
 from roadlink.association.scores import wrongly_grouped
 
@@ -97,23 +97,23 @@ def target_colours(n_targets: int) -> list[tuple[float, float, float, float]]:
 
 def _draw_time_space(ax: Axes, result: AssociationResult) -> None:
     d = result.detections
-    tracks = target_tracks(result)
-    colours = target_colours(len(tracks))
-    many = len(tracks) > LEGEND_LIMIT
+    trajectories = target_trajectories(result)
+    colours = target_colours(len(trajectories))
+    many = len(trajectories) > LEGEND_LIMIT
     for sensor in d.sensor_positions:
         ax.axhline(sensor, color="0.85", linewidth=0.6, zorder=0)
-    for track, colour in zip(tracks, colours, strict=True):
-        # 16 samples per segment draw the cubic smoothly; a single pass is a single point.
-        times = np.linspace(track.start, track.end, 16 * (len(track.passes) - 1) + 1)
+    for trajectory, colour in zip(trajectories, colours, strict=True):
+        # 16 samples per leg draw the cubic smoothly; a single pass is a single point.
+        times = np.linspace(trajectory.start, trajectory.end, 16 * (len(trajectory.passes) - 1) + 1)
         ax.plot(
             times,
-            track.positions(times),
+            trajectory.positions(times),
             color=colour,
             linewidth=0.9 if many else 1.6,
-            marker="o" if len(track.passes) == 1 else None,
+            marker="o" if len(trajectory.passes) == 1 else None,
             markersize=3,
-            label=track.target,
-            gid=f"target-{track.target}",
+            label=trajectory.target,
+            gid=f"target-{trajectory.target}",
         )
     assigned = result.groups >= 0
     if assigned.any():
@@ -131,7 +131,7 @@ def _draw_time_space(ax: Axes, result: AssociationResult) -> None:
     ax.set_ylim(
         d.position.min() - 0.04 * np.ptp(d.position), d.position.max() + 0.04 * np.ptp(d.position)
     )
-    _legend(ax, result, colours, many, "target track", line=True)
+    _legend(ax, result, colours, many, "target track", line=True)  # the published word
 
 
 def _draw_backprojected(ax: Axes, result: AssociationResult) -> None:

@@ -8,6 +8,7 @@ from roadlink.association.backprojection import (
     recover_times,
 )
 from roadlink.association.detections import Detections
+from roadlink.simulation import preset, simulate
 
 
 def test_the_papers_worked_example():
@@ -41,3 +42,8 @@ def test_recovery_inverts_backprojection(position, velocity, timestamp, referenc
     args = (np.array([position]), np.array([velocity]))
     back = backproject_times(*args, np.array([timestamp]), reference)
     np.testing.assert_allclose(recover_times(*args, back, reference), [timestamp], atol=1e-6)
+
+
+def test_raw_features_are_the_unprocessed_timestamps():
+    d = simulate(preset("large"), seed=0).detections
+    np.testing.assert_array_equal(backprojected_features(d, False)[:, 1], d.timestamp)

@@ -129,31 +129,6 @@ def test_without_feature_columns_nothing_is_reported():
     assert d.vehicle_class.tolist() == [None] * 4
 
 
-@pytest.mark.parametrize(
-    ("column", "bad"),
-    [
-        ("lane", 0.5),
-        ("lane", -1),
-        ("lane", 256),
-        ("lane", "x"),
-        ("lane", True),
-        ("length", 0.0),
-        ("length", -4.0),
-        ("length", 1e3),
-        ("length", "nan"),
-        ("length", math.inf),
-        ("vehicle_class", "x" * 33),
-        ("vehicle_class", 5),
-        ("vehicle_class", "car\x00x"),
-    ],
-)
-def test_bad_features_name_row_and_field(column, bad):
-    good = {"lane": 1, "length": 4.0, "vehicle_class": "car"}[column]
-    with pytest.raises(DetectionError) as excinfo:
-        make(**{column: [good, good, bad, good]})
-    assert problems_of(excinfo) == [(3, column)]
-
-
 def test_features_follow_take_concatenate_and_label_removal():
     d = make(lane=[0, 1, 2, 3], length=[4.0, 5.0, 6.0, 7.0], vehicle_class=["a", "b", "c", "d"])
     taken = d.take([3, 1])

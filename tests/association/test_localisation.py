@@ -10,12 +10,12 @@ import pytest
 from roadlink.association.detections import Detections
 from roadlink.association.localisation import (
     MAX_SAMPLES,
-    build_track,
+    build_trajectory,
+    leg_stats,
     positions_at,
-    segment_stats,
+    sample_trajectory,
     target_index,
-    target_track,
-    target_tracks,
+    target_trajectories,
     target_trajectory,
 )
 from roadlink.association.result import build_result
@@ -39,18 +39,18 @@ def test_a_cubic_trajectory_is_reproduced_exactly():
     times = np.array([0.0, 2.0, 3.5, 7.0])
     x = 5 * times + 0.3 * times**2 + 0.02 * times**3
     v = 5 + 0.6 * times + 0.06 * times**2
-    track = build_track("T1", detections(times, x, v))
+    trajectory = build_trajectory("T1", detections(times, x, v))
     t = np.linspace(0.0, 7.0, 57)
-    np.testing.assert_allclose(track.positions(t), 5 * t + 0.3 * t**2 + 0.02 * t**3, atol=1e-9)
-    point = track.point_at(5.0)
+    np.testing.assert_allclose(trajectory.positions(t), 5 * t + 0.3 * t**2 + 0.02 * t**3, atol=1e-9)
+    point = trajectory.point_at(5.0)
     assert point is not None
     assert point.velocity == pytest.approx(5 + 0.6 * 5 + 0.06 * 25)
 
 
 def test_input_order_does_not_matter():
     times, x, v = [0.0, 4.0, 9.0], [0.0, 100.0, 200.0], [24.0, 26.0, 18.0]
-    a = build_track("T1", detections(times, x, v))
-    b = build_track("T1", detections(times[::-1], x[::-1], v[::-1]))
+    a = build_trajectory("T1", detections(times, x, v))
+    b = build_trajectory("T1", detections(times[::-1], x[::-1], v[::-1]))
     assert [p.timestamp for p in a.passes] == [p.timestamp for p in b.passes] == times
     np.testing.assert_allclose(a.positions(np.arange(10.0)), b.positions(np.arange(10.0)))
 
@@ -62,43 +62,43 @@ def test_two_detections_at_one_sensor_are_merged_into_their_mean():
         [25.0, 24.0, 26.0, 25.0],
         ids=["a", "b", "b2", "c"],
     )
-    track = build_track("T1", d)
-    assert [p.position for p in track.passes] == [0.0, 100.0, 200.0]
-    middle = track.passes[1]
+    trajectory = build_trajectory("T1", d)
+    assert [p.position for p in trajectory.passes] == [0.0, 100.0, 200.0]
+    middle = trajectory.passes[1]
     assert (middle.timestamp, middle.velocity) == (4.25, 25.0)
     assert middle.detection_ids == ("b", "b2")
-    assert track.dropped_detection_ids == ()
+    assert trajectory.dropped_detection_ids == ()
 
 
 def test_passes_at_one_time_keep_the_first_along_the_road():
     d = detections([0.0, 4.0, 4.0], [0.0, 100.0, 200.0], [25.0, 25.0, 25.0], ids=["a", "b", "c"])
-    track = build_track("T1", d)
-    assert [p.position for p in track.passes] == [0.0, 100.0]
-    assert track.dropped_detection_ids == ("c",)
+    trajectory = build_trajectory("T1", d)
+    assert [p.position for p in trajectory.passes] == [0.0, 100.0]
+    assert trajectory.dropped_detection_ids == ("c",)
 
 
 def test_a_target_going_backwards_is_flagged():
-    track = build_track("T1", detections([0.0, 4.0], [100.0, 0.0], [25.0, 25.0]))
-    assert not track.monotone
-    assert build_track("T1", detections([0.0, 4.0], [0.0, 100.0], [25.0, 25.0])).monotone
+    trajectory = build_trajectory("T1", detections([0.0, 4.0], [100.0, 0.0], [25.0, 25.0]))
+    assert not trajectory.monotone
+    assert build_trajectory("T1", detections([0.0, 4.0], [0.0, 100.0], [25.0, 25.0])).monotone
 
 
 def test_two_detections_give_one_cubic_and_nothing_outside_it():
-    track = build_track("T1", detections([10.0, 14.0], [0.0, 100.0], [25.0, 25.0]))
-    assert track.point_at(12.0).position == pytest.approx(50.0)
-    assert track.point_at(9.99) is None
-    assert track.point_at(14.01) is None
-    assert track.point_at(float("nan")) is None
-    assert [p.time for p in track.sample([9.0, 10.0, 12.0, 14.0, 15.0])] == [10.0, 12.0, 14.0]
+    trajectory = build_trajectory("T1", detections([10.0, 14.0], [0.0, 100.0], [25.0, 25.0]))
+    assert trajectory.point_at(12.0).position == pytest.approx(50.0)
+    assert trajectory.point_at(9.99) is None
+    assert trajectory.point_at(14.01) is None
+    assert trajectory.point_at(float("nan")) is None
+    assert [p.time for p in trajectory.sample([9.0, 10.0, 12.0, 14.0, 15.0])] == [10.0, 12.0, 14.0]
 
 
 def test_a_single_detection_is_known_at_its_own_instant_only():
     d = detections([0.0, 5.0], [0.0, 100.0], [20.0, 20.0])
-    track = build_track("T1", d.take([1]))
-    assert track.point_at(5.0).position == 100.0
-    assert track.point_at(5.1) is None
-    assert target_trajectory(track).samples == (track.point_at(5.0),)
-    assert track.segments() == ()
+    trajectory = build_trajectory("T1", d.take([1]))
+    assert trajectory.point_at(5.0).position == 100.0
+    assert trajectory.point_at(5.1) is None
+    assert sample_trajectory(trajectory).samples == (trajectory.point_at(5.0),)
+    assert trajectory.legs() == ()
 
 
 def test_positions_at_lists_only_the_targets_on_the_road():
@@ -107,34 +107,34 @@ def test_positions_at_lists_only_the_targets_on_the_road():
     assert [p.target for p in positions_at(result, 2.0)] == ["T1"]
     assert [p.target for p in positions_at(result, 12.0)] == ["T2"]
     assert positions_at(result, 7.0) == []
-    assert positions_at(target_tracks(result), 2.0) == positions_at(result, 2.0)
+    assert positions_at(target_trajectories(result), 2.0) == positions_at(result, 2.0)
 
 
-def test_segment_stats_are_distance_over_travel_time():
+def test_leg_stats_are_distance_over_travel_time():
     d = detections([0.0, 4.0, 9.0], [0.0, 100.0, 200.0], [25.0, 25.0, 20.0])
     result = build_result(d, np.zeros(3, dtype=np.int64), "test", {})
-    segments = segment_stats(result)
-    assert [(s.from_sensor, s.to_sensor) for s in segments] == [("S1", "S2"), ("S2", "S3")]
-    assert [s.travel_time for s in segments] == [4.0, 5.0]
-    assert [s.mean_speed for s in segments] == [25.0, 20.0]
+    legs = leg_stats(result)
+    assert [(s.from_sensor, s.to_sensor) for s in legs] == [("S1", "S2"), ("S2", "S3")]
+    assert [s.travel_time for s in legs] == [4.0, 5.0]
+    assert [s.mean_speed for s in legs] == [25.0, 20.0]
 
 
 def test_trajectory_sampling_and_its_errors():
     d = detections([0.0, 4.0, 9.0], [0.0, 100.0, 200.0], [25.0, 25.0, 20.0])
     result = build_result(d, np.zeros(3, dtype=np.int64), "test", {})
-    trajectory = target_trajectory(result, "T1", step=2.0)
+    trajectory = sample_trajectory(result, "T1", step=2.0)
     assert [p.time for p in trajectory.samples] == [0.0, 2.0, 4.0, 6.0, 8.0, 9.0]
     assert trajectory.samples[2].position == pytest.approx(100.0)
-    assert len(target_trajectory(result, "t1").samples) == 101
+    assert len(sample_trajectory(result, "t1").samples) == 101
     json.dumps(dataclasses.asdict(trajectory))  # plain data, ready for the API
     with pytest.raises(ValueError, match="positive"):
-        target_trajectory(result, "T1", step=0.0)
+        sample_trajectory(result, "T1", step=0.0)
     with pytest.raises(ValueError, match="limit"):
-        target_trajectory(result, "T1", step=9.0 / (MAX_SAMPLES + 1))
+        sample_trajectory(result, "T1", step=9.0 / (MAX_SAMPLES + 1))
     with pytest.raises(ValueError, match="limit"):  # span / step overflows to infinity
-        target_trajectory(result, "T1", step=5e-324)
+        sample_trajectory(result, "T1", step=5e-324)
     with pytest.raises(KeyError, match=r"T1\.\.T1"):
-        target_track(result, "T2")
+        target_trajectory(result, "T2")
 
 
 def test_constant_speed_is_localised_exactly():
@@ -142,10 +142,10 @@ def test_constant_speed_is_localised_exactly():
     d = sim.detections
     checked = 0
     for k, truth in enumerate(sim.trajectories):
-        track = build_track(f"A{k + 1}", d.take(np.flatnonzero(d.target == f"A{k + 1}")))
-        inside = (truth.time > track.start) & (truth.time < track.end)
+        trajectory = build_trajectory(f"A{k + 1}", d.take(np.flatnonzero(d.target == f"A{k + 1}")))
+        inside = (truth.time > trajectory.start) & (truth.time < trajectory.end)
         np.testing.assert_allclose(
-            track.positions(truth.time[inside]), truth.position[inside], atol=1e-6
+            trajectory.positions(truth.time[inside]), truth.position[inside], atol=1e-6
         )
         checked += int(inside.sum())
     assert checked > 1000
@@ -172,12 +172,14 @@ def hermite_and_linear_errors(preset_name, seeds):
         sim = simulate(config, seed=seed, keep_trajectories=True)
         d = sim.detections
         for k, truth in enumerate(sim.trajectories):
-            track = build_track(f"A{k + 1}", d.take(np.flatnonzero(d.target == f"A{k + 1}")))
-            pass_t = np.array([p.timestamp for p in track.passes])
-            pass_x = np.array([p.position for p in track.passes])
-            inside = (truth.time > track.start) & (truth.time < track.end)
+            trajectory = build_trajectory(
+                f"A{k + 1}", d.take(np.flatnonzero(d.target == f"A{k + 1}"))
+            )
+            pass_t = np.array([p.timestamp for p in trajectory.passes])
+            pass_x = np.array([p.position for p in trajectory.passes])
+            inside = (truth.time > trajectory.start) & (truth.time < trajectory.end)
             t, x = truth.time[inside], truth.position[inside]
-            hermite.append(np.abs(track.positions(t) - x))
+            hermite.append(np.abs(trajectory.positions(t) - x))
             linear.append(np.abs(np.interp(t, pass_t, pass_x) - x))
             # An OU velocity of stationary std sigma and correlation time tau changes by about
             # sigma * sqrt(2 gap / tau) over a gap between passes much shorter than tau; knowing

@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 from roadlink.association import associate
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
-from roadlink.association.localisation import positions_at, target_trajectory
+from roadlink.association.localisation import positions_at, sample_trajectory
 from roadlink.cli import app
 from roadlink.simulation import preset, simulate
 from tests.helpers import with_features
@@ -56,7 +56,7 @@ def test_a_target_trajectory_sampled_by_step(large_csv, library_result):
     result = runner.invoke(app, ["locate", str(large_csv), "--target", "T2", "--step", "5"])
     assert result.exit_code == 0, result.output
     rows = [line.split() for line in result.stdout.splitlines()[1:]]
-    expected = target_trajectory(library_result, "T2", 5.0).samples
+    expected = sample_trajectory(library_result, "T2", 5.0).samples
     assert [float(r[0]) for r in rows] == pytest.approx([p.time for p in expected], abs=5e-4)
     assert [float(r[1]) for r in rows] == pytest.approx([p.position for p in expected], abs=5e-4)
 

@@ -2,7 +2,7 @@
 localises it (plot, positions, targets, the job page), rebuilt once per job and kept.
 
 A succeeded job's result never changes, so what is derived from it (the result itself, the
-targets' tracks, the rendered plots) is computed on first use and cached in the API process,
+targets' trajectories, the rendered plots) is computed on first use and cached in the API process,
 least recently used first out, within a budget of detections.
 """
 
@@ -23,7 +23,7 @@ from sqlalchemy.orm import Session
 
 from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem
-from roadlink.association.localisation import Track, target_tracks
+from roadlink.association.localisation import Trajectory, target_trajectories
 from roadlink.association.result import AssociationResult
 from roadlink.db import repository
 from roadlink.db.models import Job, JobState
@@ -31,11 +31,11 @@ from roadlink.plots import render_plot
 from roadlink.queue.worker import WORKER_NICENESS
 
 CACHE_DETECTIONS = 20_000
-"""Detections the cache may hold across jobs (a few hundred bytes each, with their tracks);
+"""Detections the cache may hold across jobs (a few hundred bytes each, with their trajectories);
 the most recent result is kept whatever its size. Everything cached is walked by each full
 garbage collection, which stops every request meanwhile, so the budget is kept to what the few
 jobs that people look at need. Each cached detection is an object the collector walks (its
-track's `SensorPass`): at 100,000 (a thousand jobs of 100 detections, as benchmarks/soak.py
+trajectory's `SensorPass`): at 100,000 (a thousand jobs of 100 detections, as benchmarks/soak.py
 fills it) a full collection took 43 ms of CPU on an idle core and 40-215 ms under the soak's
 load, which /healthz answers waited for; at 20,000, 5 ms on an idle core."""
 
@@ -50,9 +50,9 @@ class CachedResult:
         self._plots_lock = threading.Lock()
 
     @cached_property
-    def tracks(self) -> list[Track]:
-        """Every target's track, in target order (T1 first)."""
-        return target_tracks(self.result)
+    def trajectories(self) -> list[Trajectory]:
+        """Every target's trajectory, in target order (T1 first)."""
+        return target_trajectories(self.result)
 
     def plot(self, kind: str, fmt: str) -> bytes:
         """The plot of the result (see `roadlink.plots.render_plot`), rendered once per kind and

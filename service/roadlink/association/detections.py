@@ -1,7 +1,8 @@
 """Detections as validated columnar arrays.
 
 Every associator, the simulator, the CLI and the service exchange detections in this one shape, so
-validation lives here and nowhere else: a `Detections` object is always valid.
+validation lives here and nowhere else (one column at a time in `columns`, the optional detector
+features in `feature_columns`): a `Detections` object is always valid.
 """
 
 from __future__ import annotations
@@ -13,63 +14,38 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from roadlink.association.numbers import PLAIN_DECIMAL_HINT, strictly_parsable
+from roadlink.association.columns import (
+    MAX_ABS_VALUE,
+    DetectionError,
+    FloatArray,
+    IntArray,
+    ObjectArray,
+    Problem,
+    RawColumn,
+    float_column,
+)
+from roadlink.association.feature_columns import NO_LANE, class_column, lane_column, length_column
 
 CLUTTER = "clutter"
 """The reserved target label of a false alarm: a detection of no target."""
 
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
-ObjectArray = npt.NDArray[np.object_]
 
-NO_LANE = -1
-"""The `lane` of a detection whose detector did not report one (lanes are numbered from 0)."""
-
-# Lanes beyond this are a gateway's error, not a road (the widest motorways have a dozen or so).
-MAX_LANE = 255
-# A vehicle class is a short word from the deployment's own vocabulary ("car", "truck", "5").
-MAX_CLASS_CHARS = 32
-# No road vehicle (nor road train) is longer; a loop's length beyond it is a fault.
-MAX_LENGTH = 100.0
-
-# Beyond this magnitude, squares and sums of timestamps or positions lose all precision in float64
-# (and are certainly not real road data); rejecting them keeps every later computation finite.
-MAX_ABS_VALUE = 1e12
-
-RawColumn = Sequence[object] | npt.NDArray[Any]
-"""Unvalidated input: numbers, numeric strings, or anything else to be reported as an error."""
-
-
-@dataclass(frozen=True)
-class Problem:
-    """One thing wrong with the input: where (row, field) and what."""
-
-    row: int | None
-    field: str | None
-    message: str
-
-    def __str__(self) -> str:
-        where = []
-        if self.row is not None:
-            where.append(f"row {self.row}")
-        if self.field is not None:
-            where.append(f"field '{self.field}'")
-        prefix = ", ".join(where)
-        return f"{prefix}: {self.message}" if prefix else self.message
-
-
-class DetectionError(ValueError):
-    """The detections are invalid; `problems` says where and why (rows are 1-based data rows)."""
-
-    MAX_LISTED = 20
-
-    def __init__(self, problems: Sequence[Problem]) -> None:
-        self.problems = list(problems)
-        shown = "; ".join(str(p) for p in self.problems[: self.MAX_LISTED])
-        more = len(self.problems) - self.MAX_LISTED
-        if more > 0:
-            shown += f"; and {more} more"
-        super().__init__(shown)
+# The public names, with those of `columns` and `feature_columns` importers have always found here.
+__all__ = [
+    "CLUTTER",
+    "COLUMNS",
+    "NO_LANE",
+    "DetectionError",
+    "Detections",
+    "FloatArray",
+    "IntArray",
+    "ObjectArray",
+    "Problem",
+    "RawColumn",
+    "concatenate",
+    "feature_arrays",
+    "fill_unreported_features",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,16 +106,16 @@ class Detections:
             vehicle_class,
         )
         problems: list[Problem] = []
-        pos = _float_column("position", position, problems)
-        vel = _float_column("velocity", velocity, problems)
-        ts = _float_column("timestamp", timestamp, problems)
+        pos = float_column("position", position, problems)
+        vel = float_column("velocity", velocity, problems)
+        ts = float_column("timestamp", timestamp, problems)
         for row in np.flatnonzero(np.isfinite(vel) & (vel <= 0)):
             problems.append(
                 Problem(int(row) + 1, "velocity", f"must be > 0, got {float(vel[row])}")
             )
-        lanes = _lane_column(n, lane, problems)
-        lengths = _length_column(n, length, problems)
-        classes = _class_column(n, vehicle_class, problems)
+        lanes = lane_column(n, lane, problems)
+        lengths = length_column(n, length, problems)
+        classes = class_column(n, vehicle_class, problems)
         if problems:
             raise DetectionError(problems)
         _check_travel_times(pos, vel, problems)
@@ -284,36 +260,6 @@ def _common_length(*columns: object) -> int:
     return lengths.pop() if lengths else 0
 
 
-def _float_column(name: str, values: object, problems: list[Problem]) -> FloatArray:
-    out = _as_floats(values)
-    not_number = np.zeros(0 if out is None else out.size, dtype=bool)
-    if out is None:  # some entry is not a number: find which, one by one
-        raw = list(values)  # type: ignore[call-overload]
-        out = np.full(len(raw), np.nan)
-        not_number = np.zeros(len(raw), dtype=bool)
-        for i, value in enumerate(raw):
-            number = _as_floats([value])
-            if number is None:
-                shown = value.item() if isinstance(value, np.generic) else value
-                problems.append(
-                    Problem(i + 1, name, f"must be a number in {PLAIN_DECIMAL_HINT}, got {shown!r}")
-                )
-                not_number[i] = True
-            else:
-                out[i] = number[0]
-    for row in np.flatnonzero(~np.isfinite(out) & ~not_number):
-        problems.append(Problem(int(row) + 1, name, f"must be finite, got {float(out[row])}"))
-    for row in np.flatnonzero(np.isfinite(out) & (np.abs(out) > MAX_ABS_VALUE)):
-        problems.append(
-            Problem(
-                int(row) + 1,
-                name,
-                f"magnitude {float(out[row]):g} is beyond the limit {MAX_ABS_VALUE:g}",
-            )
-        )
-    return out
-
-
 def _check_travel_times(
     position: FloatArray, velocity: FloatArray, problems: list[Problem]
 ) -> None:
@@ -337,46 +283,6 @@ def _check_travel_times(
         )
 
 
-def _as_floats(values: object) -> FloatArray | None:
-    """The values as a flat float64 array, or None when any is not a number.
-
-    Numbers, and text in plain decimal notation (`roadlink.association.numbers`). Booleans, None,
-    bytes and text such as `30_0` or `٣٠` are not numbers, though Python and numpy would happily
-    convert them.
-    """
-    if isinstance(values, np.ndarray):
-        items = values.tolist() if values.dtype.kind in "OU" else None
-    else:
-        items = list(values)  # type: ignore[call-overload]
-    if items is not None:
-        kinds = set(map(type, items))  # at C speed: the common case is one kind
-        if not kinds <= _NUMBER_TYPES:
-            return None
-        if str in kinds and not strictly_parsable(items if kinds == {str} else _texts(items)):
-            return None
-        values = items
-    try:
-        array = np.asarray(values)
-    except ValueError:  # ragged: some entry is a sequence
-        return None
-    if array.ndim != 1 or array.dtype.kind not in "iufOU":
-        return None
-    try:
-        return array.astype(np.float64)
-    except (TypeError, ValueError):
-        return None
-
-
-def _texts(items: list[object]) -> list[str]:
-    return [v for v in items if isinstance(v, str)]
-
-
-# Exact types (bool is an int to Python, not a number to roadlink); numpy's scalars included.
-_NUMBER_TYPES = frozenset(
-    {int, float, str, np.str_, np.float64, np.float32, np.int64, np.int32, np.int16, np.int8}
-)
-
-
 def _text_column(n: int, given: Sequence[str | None] | None) -> ObjectArray:
     """Stripped strings, with None where the value is absent or blank."""
     out = np.full(n, None, dtype=object)
@@ -385,96 +291,6 @@ def _text_column(n: int, given: Sequence[str | None] | None) -> ObjectArray:
             text = None if value is None else str(value).strip()
             out[i] = text or None
     return out
-
-
-def _lane_column(n: int, given: RawColumn | None, problems: list[Problem]) -> IntArray:
-    """Lanes as whole numbers from 0 to MAX_LANE; None or a blank is "not reported" (NO_LANE),
-    and so is NO_LANE in an integer array (as `Detections.lane` holds them)."""
-    if isinstance(given, np.ndarray) and given.dtype.kind in "iu":
-        given = np.where(given == NO_LANE, np.nan, given)
-    lanes = _optional_floats("lane", n, given, problems)
-    reported = ~np.isnan(lanes)
-    wrong = reported & ((lanes != np.round(lanes)) | (lanes < 0) | (lanes > MAX_LANE))
-    for row in np.flatnonzero(wrong)[:20]:
-        problems.append(
-            Problem(
-                int(row) + 1,
-                "lane",
-                f"must be a whole number from 0 to {MAX_LANE}, got {float(lanes[row]):g}",
-            )
-        )
-    out = np.full(n, NO_LANE, dtype=np.int64)
-    ok = reported & ~wrong
-    out[ok] = lanes[ok].astype(np.int64)
-    return out
-
-
-def _length_column(n: int, given: RawColumn | None, problems: list[Problem]) -> FloatArray:
-    """Vehicle lengths, > 0 and at most MAX_LENGTH; None or a blank is "not measured" (NaN)."""
-    lengths = _optional_floats("length", n, given, problems)
-    for row in np.flatnonzero(
-        (np.abs(lengths) <= MAX_ABS_VALUE) & ((lengths <= 0) | (lengths > MAX_LENGTH))
-    )[:20]:
-        problems.append(
-            Problem(
-                int(row) + 1,
-                "length",
-                f"must be > 0 and at most {MAX_LENGTH:g}, got {float(lengths[row]):g}",
-            )
-        )
-    return lengths
-
-
-def _optional_floats(
-    name: str, n: int, given: RawColumn | None, problems: list[Problem]
-) -> FloatArray:
-    """A column of finite numbers in which None or a blank means "not reported" (NaN)."""
-    out = np.full(n, np.nan)
-    if given is None:
-        return out
-    if isinstance(given, np.ndarray) and given.dtype.kind == "f":
-        values: list[object] = [None if np.isnan(v) else v for v in given.tolist()]
-    else:
-        values = list(given)
-    reported = np.flatnonzero([not _is_blank(v) for v in values])
-    if reported.size:
-        found: list[Problem] = []
-        numbers = _float_column(name, [values[i] for i in reported], found)
-        # `_float_column` numbered the reported values alone; renumber its rows as the input's.
-        problems.extend(
-            Problem(None if p.row is None else int(reported[p.row - 1]) + 1, p.field, p.message)
-            for p in found
-        )
-        out[reported] = numbers
-    return out
-
-
-def _class_column(
-    n: int, given: Sequence[str | None] | None, problems: list[Problem]
-) -> ObjectArray:
-    """Vehicle classes: short words, None where blank."""
-    out = np.full(n, None, dtype=object)
-    if given is None:
-        return out
-    for i, value in enumerate(given):
-        if value is not None and not isinstance(value, str):
-            problems.append(Problem(i + 1, "vehicle_class", f"must be text, got {value!r}"))
-            continue
-        text = None if value is None else str(value).strip()
-        if text and (len(text) > MAX_CLASS_CHARS or not text.isprintable()):
-            problems.append(
-                Problem(
-                    i + 1,
-                    "vehicle_class",
-                    f"must be at most {MAX_CLASS_CHARS} printable characters, got {text[:40]!r}",
-                )
-            )
-        out[i] = text or None
-    return out
-
-
-def _is_blank(value: object) -> bool:
-    return value is None or (isinstance(value, str) and not value.strip())
 
 
 def _sensor_ids(

@@ -8,6 +8,10 @@ derivatives). Using the velocities, not only the positions, is what makes a spee
 sensors show up as a curve instead of a kink; `docs/visualisation.md` measures the gain against
 straight-line interpolation on the simulator's ground truth.
 
+A target's interpolated path is its `Trajectory`, and its trip between two consecutive sensors a
+`Leg` (the API and the CLI publish these as `track` and `segments`, their contract's words; see
+`published_trajectory`).
+
 Everything here returns plain frozen dataclasses of str / float / int (and tuples of them), so
 `dataclasses.asdict` turns any of them into JSON-ready data.
 """
@@ -16,8 +20,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
@@ -35,7 +40,7 @@ MAX_SAMPLES = 100_000
 
 @dataclass(frozen=True)
 class SensorPass:
-    """A target passing one sensor: one detection, or several merged (see `Track`)."""
+    """A target passing one sensor: one detection, or several merged (see `Trajectory`)."""
 
     sensor_id: str
     position: float
@@ -45,7 +50,7 @@ class SensorPass:
 
 
 @dataclass(frozen=True)
-class TrackPoint:
+class TrajectoryPoint:
     """A target's estimated position and velocity at one time."""
 
     time: float
@@ -64,7 +69,7 @@ class TargetPosition:
 
 
 @dataclass(frozen=True)
-class Segment:
+class Leg:
     """A target's trip between two consecutive sensors it passed."""
 
     target: str
@@ -82,24 +87,24 @@ class Segment:
 
 
 @dataclass(frozen=True)
-class TargetTrajectory:
-    """One target's passes, the segments between them, and its track sampled over time."""
+class SampledTrajectory:
+    """One target's passes, the legs between them, and its trajectory sampled over time."""
 
     target: str
     start: float
     end: float
     passes: tuple[SensorPass, ...]
-    segments: tuple[Segment, ...]
-    samples: tuple[TrackPoint, ...]
+    legs: tuple[Leg, ...]
+    samples: tuple[TrajectoryPoint, ...]
     dropped_detection_ids: tuple[str, ...]
     monotone: bool
 
 
 @dataclass(frozen=True, eq=False)
-class Track:
+class Trajectory:
     """One target's passes in time order, and its interpolated position between them.
 
-    Built by `build_track`, which cleans the input so the interpolation is well posed:
+    Built by `build_trajectory`, which cleans the input so the interpolation is well posed:
     detections of one sensor are merged into one pass (mean time and velocity: with a duplicated
     report or two detections grouped together there is no telling which is right, and the mean is
     at most half their spread from either); of passes at different sensors sharing one time, which
@@ -156,28 +161,28 @@ class Track:
         """Whether the target is on the observed road at `t` (between its first and last pass)."""
         return self.start <= t <= self.end
 
-    def point_at(self, t: float) -> TrackPoint | None:
+    def point_at(self, t: float) -> TrajectoryPoint | None:
         """Estimated position and velocity at `t`; None outside [start, end]."""
         if not math.isfinite(t) or not self.covers(t):
             return None
         spline = self._spline
         if spline is None:  # a single pass: known at that one instant only
-            return TrackPoint(t, float(self._positions[0]), float(self._velocities[0]))
-        return TrackPoint(t, float(spline(t)), float(spline(t, 1)))
+            return TrajectoryPoint(t, float(self._positions[0]), float(self._velocities[0]))
+        return TrajectoryPoint(t, float(spline(t)), float(spline(t, 1)))
 
-    def sample(self, times: Sequence[float] | FloatArray) -> tuple[TrackPoint, ...]:
+    def sample(self, times: Sequence[float] | FloatArray) -> tuple[TrajectoryPoint, ...]:
         """Estimated points at the given times; times outside [start, end] are left out."""
         t = np.asarray(times, dtype=np.float64).reshape(-1)
         t = t[np.isfinite(t) & (t >= self.start) & (t <= self.end)]
         spline = self._spline
         if spline is None:
             return tuple(
-                TrackPoint(float(x), float(self._positions[0]), float(self._velocities[0]))
+                TrajectoryPoint(float(x), float(self._positions[0]), float(self._velocities[0]))
                 for x in t
             )
         position, velocity = spline(t), spline(t, 1)
         return tuple(
-            TrackPoint(float(a), float(b), float(c))
+            TrajectoryPoint(float(a), float(b), float(c))
             for a, b, c in zip(t, position, velocity, strict=True)
         )
 
@@ -189,14 +194,14 @@ class Track:
             return np.where(t == self.start, self._positions[0], np.nan)
         return np.asarray(spline(t), dtype=np.float64)
 
-    def segments(self) -> tuple[Segment, ...]:
+    def legs(self) -> tuple[Leg, ...]:
         """Travel time, distance and mean speed between each pair of consecutive passes."""
         out = []
         for a, b in zip(self.passes, self.passes[1:], strict=False):
             travel = b.timestamp - a.timestamp
             distance = b.position - a.position
             out.append(
-                Segment(
+                Leg(
                     target=self.target,
                     from_sensor=a.sensor_id,
                     to_sensor=b.sensor_id,
@@ -212,8 +217,9 @@ class Track:
         return tuple(out)
 
 
-def build_track(target: str, detections: Detections) -> Track:
-    """The track of one target from its detections, in any order (see `Track` for the cleaning)."""
+def build_trajectory(target: str, detections: Detections) -> Trajectory:
+    """The trajectory of one target from its detections, in any order (see `Trajectory` for the
+    cleaning)."""
     if len(detections) == 0:
         raise ValueError(f"target {target} has no detections")
     merged = _merge_by_sensor(detections)
@@ -226,42 +232,42 @@ def build_track(target: str, detections: Detections) -> Track:
             dropped.extend(p.detection_ids)
         else:
             passes.append(p)
-    return Track(target, tuple(passes), tuple(dropped))
+    return Trajectory(target, tuple(passes), tuple(dropped))
 
 
-def target_tracks(result: AssociationResult) -> list[Track]:
-    """The track of every target of `result`, in target order (T1 first)."""
+def target_trajectories(result: AssociationResult) -> list[Trajectory]:
+    """The trajectory of every target of `result`, in target order (T1 first)."""
     d = result.detections
-    return [build_track(f"T{k + 1}", d.take(m)) for k, m in enumerate(result.target_members())]
+    return [build_trajectory(f"T{k + 1}", d.take(m)) for k, m in enumerate(result.target_members())]
 
 
-def target_track(result: AssociationResult, target: str) -> Track:
-    """The track of one target, named as in the result JSON ("T3"); KeyError when unknown."""
+def target_trajectory(result: AssociationResult, target: str) -> Trajectory:
+    """The trajectory of one target, named as in the result JSON ("T3"); KeyError when unknown."""
     index = target_index(target, result.n_targets)
     members = result.target_members()[index]
-    return build_track(f"T{index + 1}", result.detections.take(members))
+    return build_trajectory(f"T{index + 1}", result.detections.take(members))
 
 
-def target_trajectory(
-    result: AssociationResult | Track, target: str | None = None, step: float | None = None
-) -> TargetTrajectory:
-    """A target's passes, segments and track sampled every `step` from its first to last pass.
+def sample_trajectory(
+    result: AssociationResult | Trajectory, target: str | None = None, step: float | None = None
+) -> SampledTrajectory:
+    """A target's passes, legs and trajectory sampled every `step` from its first to last pass.
 
     Without `step` the span is cut into `DEFAULT_SAMPLES` equal intervals. The last pass is
     always among the samples. ValueError when `step` is not positive or gives more than
     `MAX_SAMPLES` samples.
     """
-    if isinstance(result, Track):
-        track = result
+    if isinstance(result, Trajectory):
+        trajectory = result
     else:
         if target is None:
             raise ValueError("name the target, e.g. 'T1'")
-        track = target_track(result, target)
-    span = track.end - track.start
+        trajectory = target_trajectory(result, target)
+    span = trajectory.end - trajectory.start
     if step is not None and not (math.isfinite(step) and step > 0):
         raise ValueError(f"step must be a positive number, got {step}")
     if span == 0:
-        times = np.array([track.start])
+        times = np.array([trajectory.start])
     else:
         if step is None:
             step = span / DEFAULT_SAMPLES
@@ -272,43 +278,56 @@ def target_trajectory(
                 f"the limit is {MAX_SAMPLES}"
             )
         count = math.floor(intervals) + 1
-        times = track.start + step * np.arange(count)
-        if times[-1] < track.end:
-            times = np.append(times, track.end)
-    return TargetTrajectory(
-        target=track.target,
-        start=track.start,
-        end=track.end,
-        passes=track.passes,
-        segments=track.segments(),
-        samples=track.sample(np.minimum(times, track.end)),
-        dropped_detection_ids=track.dropped_detection_ids,
-        monotone=track.monotone,
+        times = trajectory.start + step * np.arange(count)
+        if times[-1] < trajectory.end:
+            times = np.append(times, trajectory.end)
+    return SampledTrajectory(
+        target=trajectory.target,
+        start=trajectory.start,
+        end=trajectory.end,
+        passes=trajectory.passes,
+        legs=trajectory.legs(),
+        samples=trajectory.sample(np.minimum(times, trajectory.end)),
+        dropped_detection_ids=trajectory.dropped_detection_ids,
+        monotone=trajectory.monotone,
     )
 
 
-def positions_at(result: AssociationResult | Sequence[Track], t: float) -> list[TargetPosition]:
+def published_trajectory(trajectory: SampledTrajectory) -> dict[str, Any]:
+    """`trajectory` as JSON-ready data in the words the API and the CLI publish: its legs under
+    `segments`, in their place (the contract's name; see ARCHITECTURE.md, "Names")."""
+    return {
+        ("segments" if key == "legs" else key): value for key, value in asdict(trajectory).items()
+    }
+
+
+def positions_at(
+    result: AssociationResult | Sequence[Trajectory], t: float
+) -> list[TargetPosition]:
     """Every target on the observed road at time `t` (between its first and last pass).
 
-    Pass the tracks (from `target_tracks`) instead of the result to answer many times cheaply.
+    Pass the trajectories (from `target_trajectories`) instead of the result to answer many times
+    cheaply.
     """
-    tracks = target_tracks(result) if isinstance(result, AssociationResult) else result
+    trajectories = target_trajectories(result) if isinstance(result, AssociationResult) else result
     out = []
-    for track in tracks:
-        point = track.point_at(t)
+    for trajectory in trajectories:
+        point = trajectory.point_at(t)
         if point is not None:
-            out.append(TargetPosition(track.target, point.time, point.position, point.velocity))
+            out.append(
+                TargetPosition(trajectory.target, point.time, point.position, point.velocity)
+            )
     return out
 
 
-def segment_stats(result: AssociationResult | Sequence[Track]) -> list[Segment]:
+def leg_stats(result: AssociationResult | Sequence[Trajectory]) -> list[Leg]:
     """Travel time and mean speed of every target between each pair of consecutive sensors."""
-    tracks = target_tracks(result) if isinstance(result, AssociationResult) else result
-    return [s for track in tracks for s in track.segments()]
+    trajectories = target_trajectories(result) if isinstance(result, AssociationResult) else result
+    return [s for trajectory in trajectories for s in trajectory.legs()]
 
 
 def _merge_by_sensor(d: Detections) -> list[SensorPass]:
-    """One pass per sensor position: several detections there are averaged (see `Track`)."""
+    """One pass per sensor position: several detections there are averaged (see `Trajectory`)."""
     passes = []
     for position in np.unique(d.position):
         at = np.flatnonzero(d.position == position)

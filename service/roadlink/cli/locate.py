@@ -15,12 +15,13 @@ import typer
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.association.detections import Detections
 from roadlink.association.localisation import (
-    TargetTrajectory,
+    SampledTrajectory,
+    leg_stats,
     positions_at,
-    segment_stats,
+    published_trajectory,
+    sample_trajectory,
     target_index,
-    target_tracks,
-    target_trajectory,
+    target_trajectories,
 )
 from roadlink.association.result import AssociationResult
 from roadlink.cli import app
@@ -75,11 +76,11 @@ def locate_command(
         return
     try:
         if segments:
-            tracks = target_tracks(result)
+            trajectories = target_trajectories(result)
             if target is not None:
-                tracks = [tracks[target_index(target, len(tracks))]]
+                trajectories = [trajectories[target_index(target, len(trajectories))]]
             _emit(
-                _described(segment_stats(tracks), vehicles),
+                _described(leg_stats(trajectories), vehicles),
                 as_json,
                 (
                     "target",
@@ -93,7 +94,7 @@ def locate_command(
             )
             return
         assert target is not None
-        trajectory = target_trajectory(result, target, step)
+        trajectory = sample_trajectory(result, target, step)
     except (KeyError, ValueError) as exc:
         raise fail(exc.args[0] if exc.args else str(exc)) from None
     if as_json:
@@ -125,11 +126,11 @@ def _described(rows: Sequence[Any], vehicles: dict[str, dict[str, Any]]) -> list
 
 
 def _trajectory_dict(
-    trajectory: TargetTrajectory, vehicle: dict[str, Any], detections: Detections
+    trajectory: SampledTrajectory, vehicle: dict[str, Any], detections: Detections
 ) -> dict[str, Any]:
     """The trajectory as JSON: the target's description after its name, and on each pass the
     features its detection reported (the earliest, when duplicates were merged into it)."""
-    printed = dataclasses.asdict(trajectory)
+    printed = published_trajectory(trajectory)
     features = {name: detections.feature_values(name) for name in detections.features}
     if features:
         index = {i: k for k, i in enumerate(detections.detection_id.tolist())}

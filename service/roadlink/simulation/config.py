@@ -13,7 +13,7 @@ from pydantic import (
     model_validator,
 )
 
-from roadlink.association.detections import MAX_LANE
+from roadlink.association.feature_columns import MAX_LANE
 from roadlink.simulation.faults import DetectorFaults
 
 

@@ -6,7 +6,6 @@ import time
 import uuid
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from dataclasses import asdict
 from datetime import UTC, datetime
 from typing import Annotated, Literal
 
@@ -29,7 +28,12 @@ from roadlink.api.schemas import (
     TargetPositionRead,
     TargetTrajectoryRead,
 )
-from roadlink.association.localisation import positions_at, target_index, target_trajectory
+from roadlink.association.localisation import (
+    positions_at,
+    published_trajectory,
+    sample_trajectory,
+    target_index,
+)
 from roadlink.db import repository
 from roadlink.db.models import ApiKey, Job, JobState
 from roadlink.plots import PlotFormat, PlotKind
@@ -239,7 +243,7 @@ def get_positions(
         time=t,
         targets=[
             TargetPositionRead(target=p.target, position=p.position, velocity=p.velocity)
-            for p in positions_at(job.tracks, t)
+            for p in positions_at(job.trajectories, t)
         ],
     )
 
@@ -268,16 +272,16 @@ def get_target(
     and its track (position and velocity by cubic Hermite interpolation) sampled from its first
     to its last pass. 404 for a target the result does not have."""
     try:
-        track = job.tracks[target_index(target, len(job.tracks))]
+        trajectory = job.trajectories[target_index(target, len(job.trajectories))]
     except KeyError as exc:
         raise ApiProblem(404, f"job {job.job_id} has no target: {exc.args[0]}") from None
     try:
-        trajectory = target_trajectory(track, step=step)
+        sampled = sample_trajectory(trajectory, step=step)
     except ValueError as exc:
         raise ApiProblem(
             422, str(exc), errors=[ProblemItem(field="step", message=str(exc))]
         ) from None
-    return TargetTrajectoryRead.model_validate(asdict(trajectory))
+    return TargetTrajectoryRead.model_validate(published_trajectory(sampled))
 
 
 @router.post(

@@ -253,22 +253,24 @@ def _result_view(cached: CachedResult, kind: str) -> ResultView:
 
     colours = target_colours(result.n_targets)
     targets = []
-    for k, (members, track) in enumerate(zip(result.target_members(), cached.tracks, strict=True)):
+    for k, (members, trajectory) in enumerate(
+        zip(result.target_members(), cached.trajectories, strict=True)
+    ):
         labels = Counter(str(t) for t in d.target[members] if t is not None)
         top = labels.most_common(1)
-        span = track.end - track.start
-        first, last = track.passes[0], track.passes[-1]
+        span = trajectory.end - trajectory.start
+        first, last = trajectory.passes[0], trajectory.passes[-1]
         targets.append(
             TargetRow(
                 name=f"T{k + 1}",
                 colour=_hex(colours[k]),
                 n_detections=int(members.size),
-                start=track.start,
-                end=track.end,
+                start=trajectory.start,
+                end=trajectory.end,
                 first_position=first.position,
                 last_position=last.position,
                 mean_speed=(last.position - first.position) / span if span > 0 else None,
-                monotone=track.monotone,
+                monotone=trajectory.monotone,
                 label=top[0][0] if top else None,
                 label_share=f"{top[0][1]}/{members.size}" if top else None,
                 n_wrong=int(wrong[members].sum()),

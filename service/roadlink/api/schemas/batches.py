@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from roadlink.api.schemas.examples import EXAMPLE_ID
 from roadlink.api.schemas.jobs import JobRead
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
-from roadlink.association.detections import MAX_CLASS_CHARS, MAX_LANE, MAX_LENGTH
+from roadlink.association.feature_columns import MAX_CLASS_CHARS, MAX_LANE, MAX_LENGTH
 from roadlink.db.models import Batch, Job
 
 

@@ -118,6 +118,9 @@ class AssignmentParams(AssociatorParams):
         description="Prior relative spread (std of log) of a travel time around its kinematic "
         "prediction, before the segments' own spreads are learned.",
     )
+    # This package says "speed" for the scalar a detector measures; the parameters below that say
+    # "velocity" (velocity_change_*, velocity_floor, duplicate_velocity_tolerance) keep it because
+    # their names are API contract, chosen after the detection contract's `velocity` column.
     velocity_change_spread: float = Field(
         default=0.1,
         gt=0,

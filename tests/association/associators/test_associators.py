@@ -5,8 +5,6 @@ import pytest
 
 from roadlink.association import Detections, associate
 from roadlink.association.associators import ASSOCIATORS, AssociationError
-from roadlink.association.associators.kmeans import estimate_target_count, kmeanspp_centres
-from roadlink.association.backprojection import backprojected_features
 from roadlink.simulation import preset, simulate
 
 ALL = sorted(ASSOCIATORS)
@@ -115,82 +113,3 @@ def test_the_papers_findings_hold(preset_name):
     # Floors well below what was measured (README), above what a broken method reaches.
     assert acc["svm-quadratic"] > 0.85
     assert acc["kmeans++"] > 0.7
-
-
-def test_supervised_associators_refuse_unlabelled_data():
-    d = paper_data().without_labels()
-    for name in ("svm-linear", "svm-quadratic"):
-        with pytest.raises(AssociationError, match="supervised"):
-            associate(d, name)
-
-
-def test_svm_labels_the_unlabelled_from_the_labelled():
-    d = paper_data("large", seed=5)
-    hidden = np.zeros(len(d), dtype=bool)
-    hidden[::3] = True
-    partial = Detections.from_columns(
-        d.position,
-        d.velocity,
-        d.timestamp,
-        d.sensor_id,
-        d.detection_id,
-        np.where(hidden, None, d.target).tolist(),
-    )
-    result = associate(partial, "svm-quadratic")
-    # Score the predictions of the hidden third against the truth.
-    by_target = {}
-    for group, label in zip(result.groups[hidden], d.target[hidden], strict=True):
-        by_target.setdefault(label, []).append(group)
-    majority = np.mean([max(np.bincount(g)) / len(g) for g in by_target.values()])
-    assert majority > 0.8
-    assert result.metrics is not None  # scored on the labelled two thirds, out-of-fold
-
-
-def test_svm_needs_two_labels_and_repeated_labels():
-    d = paper_data()
-    one_label = Detections.from_columns(d.position, d.velocity, d.timestamp, target=["A"] * len(d))
-    with pytest.raises(AssociationError, match="two distinct labels"):
-        associate(one_label, "svm-linear")
-    unique = Detections.from_columns(
-        d.position, d.velocity, d.timestamp, target=[f"x{i}" for i in range(len(d))]
-    )
-    with pytest.raises(AssociationError, match="at least two detections"):
-        associate(unique, "svm-linear")
-
-
-def test_kmeans_estimates_the_target_count_from_detections_per_sensor():
-    assert estimate_target_count(paper_data()) == 10
-    assert estimate_target_count(paper_data("large", miss_probability=0.1, seed=1)) in (9, 10)
-    result = associate(paper_data(), "kmeans++")
-    assert result.n_targets == 10
-    assert associate(paper_data(), "kmeans++", {"n_targets": 4}).n_targets == 4
-
-
-def test_kmeanspp_seeding_draws_in_proportion_to_squared_distance():
-    # Points 0, 1 and 3 on a line: once the first centre is at 0, the next is 1 with
-    # probability 1/10 and 3 with probability 9/10.
-    points = np.array([[0.0], [1.0], [3.0]])
-    second = []
-    for seed in range(4000):
-        centres = kmeanspp_centres(points, 2, np.random.default_rng(seed))
-        if centres[0, 0] == 0.0:
-            second.append(centres[1, 0])
-    share_of_far = np.mean(np.array(second) == 3.0)
-    assert 0.86 < share_of_far < 0.94
-    assert 0.0 not in second
-
-
-def test_unknown_associator_lists_the_known_ones():
-    with pytest.raises(AssociationError, match=r"known: .*kmeans"):
-        associate(paper_data(), "nope")
-
-
-@pytest.mark.parametrize("name", ["kmeans", "kmeans++", "assignment", "svm-linear"])
-def test_empty_input_is_refused_saying_so(name):
-    with pytest.raises(AssociationError, match="there are no detections to associate"):
-        associate(Detections.from_columns([], [], []), name)
-
-
-def test_raw_features_are_the_unprocessed_timestamps():
-    d = paper_data()
-    np.testing.assert_array_equal(backprojected_features(d, False)[:, 1], d.timestamp)

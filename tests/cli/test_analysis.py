@@ -1,4 +1,4 @@
-"""The roadlink command as a user runs it: simulate, associate, reproduce."""
+"""`roadlink simulate` and `roadlink associate` (`cli/analysis.py`) as a user runs them."""
 
 import json
 
@@ -126,32 +126,3 @@ def test_unlabelled_simulation_has_no_metrics(tmp_path):
     runner.invoke(app, ["simulate", "--unlabelled", "-o", str(path)])
     result = runner.invoke(app, ["associate", str(path), "--associator", "kmeans++", "--json"])
     assert json.loads(result.stdout)["metrics"] is None
-
-
-def test_reproduce_prints_the_table_and_writes_the_chart(tmp_path):
-    chart, table = tmp_path / "chart.png", tmp_path / "table.json"
-    result = runner.invoke(
-        app,
-        [
-            "reproduce",
-            "--seeds",
-            "2",
-            "--preset",
-            "small",
-            "--associator",
-            "kmeans++",
-            "--plot",
-            str(chart),
-            "--json",
-            str(table),
-        ],
-    )
-    assert result.exit_code == 0, result.output
-    assert "| kmeans++ |" in result.stdout and "| kmeans++ (raw) |" in result.stdout
-    assert chart.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    rows = json.loads(table.read_text())
-    assert {(r["associator"], r["backproject"]) for r in rows} == {
-        ("kmeans++", True),
-        ("kmeans++", False),
-    }
-    assert all(len(r["accuracies"]) == 2 for r in rows)

@@ -1,4 +1,5 @@
-"""The associator catalogue, and simulated batches."""
+"""Simulated batches (`api/routers/simulations.py`): labelled detections from the simulator, stored
+as a batch of a deployment, with its sensors and the detector features asked for."""
 
 from __future__ import annotations
 
@@ -7,20 +8,10 @@ from typing import Any
 from fastapi.testclient import TestClient
 
 from roadlink.api.routers.simulations import _with_declared_sensor_ids
-from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR
 from roadlink.db.json_columns import Sensor
 from roadlink.queue.worker import Worker
 from roadlink.simulation import preset, simulate
 from tests.helpers import assert_problem
-
-
-def test_associators_list_every_registered_one_with_its_parameters(client: TestClient) -> None:
-    listed = {a["name"]: a for a in client.get("/v1/associators").json()}
-    assert set(listed) == set(ASSOCIATORS)
-    assert [n for n, a in listed.items() if a["default"]] == [DEFAULT_ASSOCIATOR]
-    for name, cls in ASSOCIATORS.items():
-        assert listed[name]["parameters"] == cls.parameters_schema()
-        assert listed[name]["needs_labels"] == cls.needs_labels
 
 
 def test_a_simulation_makes_a_labelled_batch_and_can_associate_it(

@@ -19,7 +19,7 @@ from roadlink.association.associators.assignment.features import (
 from roadlink.association.csvio import read_detections_csv
 from roadlink.association.detections import Detections
 
-CASES = Path(__file__).parents[1] / "data" / "sumo-features"
+CASES = Path(__file__).parents[3] / "data" / "sumo-features"
 
 # Accuracy on the committed seed-0 cases with the features, and without them (the same
 # detections, `without_features`), as measured; the test allows a margin of 3 points.

@@ -18,7 +18,7 @@ from roadlink.association.csvio import read_detections_csv
 from roadlink.association.result import AssociationResult, result_from_dict
 from roadlink.simulation import preset, simulate
 
-SUMO = Path(__file__).parents[1] / "data" / "sumo"
+SUMO = Path(__file__).parents[3] / "data" / "sumo"
 GATE = 18.0
 
 

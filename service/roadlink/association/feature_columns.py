@@ -1,0 +1,122 @@
+"""The optional detector features' columns checked: lane, length and vehicle class.
+
+Real detectors report more than the paper's (position, velocity, timestamp), and not every sensor
+measures each feature, so in these columns None or a blank means "not reported" for that
+detection. `Detections.from_columns` calls these; each lists what is wrong in `problems`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from roadlink.association.columns import (
+    MAX_ABS_VALUE,
+    FloatArray,
+    IntArray,
+    ObjectArray,
+    Problem,
+    RawColumn,
+    float_column,
+)
+
+NO_LANE = -1
+"""The `lane` of a detection whose detector did not report one (lanes are numbered from 0)."""
+
+# Lanes beyond this are a gateway's error, not a road (the widest motorways have a dozen or so).
+MAX_LANE = 255
+# A vehicle class is a short word from the deployment's own vocabulary ("car", "truck", "5").
+MAX_CLASS_CHARS = 32
+# No road vehicle (nor road train) is longer; a loop's length beyond it is a fault.
+MAX_LENGTH = 100.0
+
+
+def lane_column(n: int, given: RawColumn | None, problems: list[Problem]) -> IntArray:
+    """Lanes as whole numbers from 0 to MAX_LANE; None or a blank is "not reported" (NO_LANE),
+    and so is NO_LANE in an integer array (as `Detections.lane` holds them)."""
+    if isinstance(given, np.ndarray) and given.dtype.kind in "iu":
+        given = np.where(given == NO_LANE, np.nan, given)
+    lanes = _optional_floats("lane", n, given, problems)
+    reported = ~np.isnan(lanes)
+    wrong = reported & ((lanes != np.round(lanes)) | (lanes < 0) | (lanes > MAX_LANE))
+    for row in np.flatnonzero(wrong)[:20]:
+        problems.append(
+            Problem(
+                int(row) + 1,
+                "lane",
+                f"must be a whole number from 0 to {MAX_LANE}, got {float(lanes[row]):g}",
+            )
+        )
+    out = np.full(n, NO_LANE, dtype=np.int64)
+    ok = reported & ~wrong
+    out[ok] = lanes[ok].astype(np.int64)
+    return out
+
+
+def length_column(n: int, given: RawColumn | None, problems: list[Problem]) -> FloatArray:
+    """Vehicle lengths, > 0 and at most MAX_LENGTH; None or a blank is "not measured" (NaN)."""
+    lengths = _optional_floats("length", n, given, problems)
+    for row in np.flatnonzero(
+        (np.abs(lengths) <= MAX_ABS_VALUE) & ((lengths <= 0) | (lengths > MAX_LENGTH))
+    )[:20]:
+        problems.append(
+            Problem(
+                int(row) + 1,
+                "length",
+                f"must be > 0 and at most {MAX_LENGTH:g}, got {float(lengths[row]):g}",
+            )
+        )
+    return lengths
+
+
+def _optional_floats(
+    name: str, n: int, given: RawColumn | None, problems: list[Problem]
+) -> FloatArray:
+    """A column of finite numbers in which None or a blank means "not reported" (NaN)."""
+    out = np.full(n, np.nan)
+    if given is None:
+        return out
+    if isinstance(given, np.ndarray) and given.dtype.kind == "f":
+        values: list[object] = [None if np.isnan(v) else v for v in given.tolist()]
+    else:
+        values = list(given)
+    reported = np.flatnonzero([not _is_blank(v) for v in values])
+    if reported.size:
+        found: list[Problem] = []
+        numbers = float_column(name, [values[i] for i in reported], found)
+        # `float_column` numbered the reported values alone; renumber its rows as the input's.
+        problems.extend(
+            Problem(None if p.row is None else int(reported[p.row - 1]) + 1, p.field, p.message)
+            for p in found
+        )
+        out[reported] = numbers
+    return out
+
+
+def class_column(
+    n: int, given: Sequence[str | None] | None, problems: list[Problem]
+) -> ObjectArray:
+    """Vehicle classes: short words, None where blank."""
+    out = np.full(n, None, dtype=object)
+    if given is None:
+        return out
+    for i, value in enumerate(given):
+        if value is not None and not isinstance(value, str):
+            problems.append(Problem(i + 1, "vehicle_class", f"must be text, got {value!r}"))
+            continue
+        text = None if value is None else str(value).strip()
+        if text and (len(text) > MAX_CLASS_CHARS or not text.isprintable()):
+            problems.append(
+                Problem(
+                    i + 1,
+                    "vehicle_class",
+                    f"must be at most {MAX_CLASS_CHARS} printable characters, got {text[:40]!r}",
+                )
+            )
+        out[i] = text or None
+    return out
+
+
+def _is_blank(value: object) -> bool:
+    return value is None or (isinstance(value, str) and not value.strip())

@@ -1,0 +1,36 @@
+"""The parameters in time units (`assignment/params.py`, `within_time_scale`): held to the
+detections' own time scale, and the defaults where that is seconds."""
+
+import pytest
+from pydantic import ValidationError
+
+from roadlink.association.associators.assignment import AssignmentParams, within_time_scale
+from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.simulation import preset, simulate
+from tests.helpers import in_hours
+
+
+def test_parameters_in_time_units_follow_the_callers_time_unit():
+    d = simulate(preset("medium"), seed=0).detections
+    params = AssignmentParams()
+    # Seconds: the defaults stand.
+    assert within_time_scale(params, arrange(d, params).typical_travel_time()) == params
+    # Hours: a 0.5 h duplicate window would take every report within half an hour of another
+    # for a copy; both are held to shares of a travel time between sensors (about 3 s here).
+    hours = within_time_scale(params, arrange(in_hours(d), params).typical_travel_time())
+    assert 0.1 / 3600 < hours.duplicate_window < 1.0 / 3600
+    assert hours.timestamp_noise < 0.1 / 3600
+
+
+def test_the_contracts_velocity_names_are_the_parameters_and_their_bounds_are_checked():
+    contract = {
+        "velocity_change_weight",
+        "velocity_change_spread",
+        "velocity_change_ambiguity",
+        "velocity_floor",
+        "duplicate_velocity_tolerance",
+    }
+    assert contract <= set(AssignmentParams.model_fields)
+    for name in contract:
+        with pytest.raises(ValidationError, match=name):
+            AssignmentParams(**{name: -1.0})

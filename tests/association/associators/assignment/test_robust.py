@@ -1,0 +1,31 @@
+"""Robust summaries (`assignment/robust.py`): the quick median agrees with numpy's, and the
+spread is the normal-consistent MAD."""
+
+import numpy as np
+import pytest
+
+from roadlink.association.associators.assignment.robust import (
+    MAD_TO_STD,
+    SHORT_ARRAY,
+    centre_and_spread,
+    median,
+)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, SHORT_ARRAY, SHORT_ARRAY + 1, 1000])
+def test_median_is_numpys_on_short_and_long_arrays(n: int) -> None:
+    values = np.random.default_rng(n).normal(size=n)
+    assert median(values) == float(np.median(values))
+    assert median(values.tolist()) == float(np.median(values))
+
+
+def test_the_median_of_nothing_is_nan_as_numpys() -> None:
+    with pytest.warns(RuntimeWarning):
+        assert np.isnan(median([]))
+
+
+def test_centre_and_spread_are_the_median_and_the_scaled_mad() -> None:
+    assert centre_and_spread(np.array([1.0, 2.0, 3.0, 4.0, 100.0])) == (3.0, MAD_TO_STD * 1.0)
+    samples = np.random.default_rng(0).normal(5.0, 2.0, size=200_000)
+    centre, spread = centre_and_spread(samples)
+    assert centre == pytest.approx(5.0, abs=0.02) and spread == pytest.approx(2.0, rel=0.01)

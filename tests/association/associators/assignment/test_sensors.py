@@ -1,0 +1,48 @@
+"""The detections arranged by sensor (`assignment/sensors.py`), and the kinematic travel time."""
+
+import numpy as np
+import pytest
+
+from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.sensors import KINEMATIC_SKEW, arrange, travel_time
+from roadlink.association.detections import Detections
+
+
+def test_the_kinematic_travel_time_weighs_both_ends_speeds_alike():
+    assert KINEMATIC_SKEW == 0.5
+    assert travel_time(100.0, 10.0, 20.0) == pytest.approx(100.0 * (0.5 / 10.0 + 0.5 / 20.0))
+    assert travel_time(100.0, 10.0, 20.0, skew=0.0) == pytest.approx(10.0)
+    assert travel_time(100.0, 10.0, 20.0, skew=1.0) == pytest.approx(5.0)
+    lengths = np.array([100.0, 200.0])
+    np.testing.assert_allclose(travel_time(lengths, 10.0, 10.0), [10.0, 20.0])
+
+
+def test_detections_are_ordered_by_sensor_then_time_with_speeds_floored():
+    d = Detections.from_columns(
+        position=[100.0, 0.0, 0.0, 100.0, 0.0],
+        velocity=[20.0, 30.0, 0.001, 25.0, 20.0],
+        timestamp=[9.0, 3.0, 1.0, 5.0, 2.0],
+    )
+    params = AssignmentParams()
+    s = arrange(d, params)
+    assert s.positions.tolist() == [0.0, 100.0]
+    assert s.order.tolist() == [2, 4, 1, 3, 0]
+    assert s.start.tolist() == [0, 3, 5]
+    assert s.members(1).tolist() == [3, 0]
+    assert s.sensor.tolist() == [1, 0, 0, 1, 0]
+    floor = params.velocity_floor * 20.0  # the median speed
+    assert s.speed[2] == floor and s.speed[0] == 20.0
+    assert s.top_speed.tolist() == [30.0, 25.0]
+    assert s.median_speed.tolist() == [20.0, 22.5]
+    np.testing.assert_allclose(s.sorted_inverse_speed, 1.0 / s.speed[s.order])
+    # A speed relative to its own sensor's median log speed.
+    assert s.relative_speed[1] == pytest.approx(np.log(30.0) - np.log(20.0))
+
+
+def test_the_typical_travel_time_is_between_neighbours_at_their_median_speeds():
+    d = Detections.from_columns([0.0, 100.0, 300.0], [10.0, 10.0, 20.0], [0.0, 10.0, 25.0])
+    s = arrange(d, AssignmentParams())
+    # 100 m at 10 m/s both ends, 200 m at 10 then 20 m/s: 10 s and 15 s, median 12.5 s.
+    assert s.typical_travel_time() == pytest.approx(12.5)
+    one = arrange(Detections.from_columns([0.0], [10.0], [0.0]), AssignmentParams())
+    assert one.typical_travel_time() is None

@@ -1,0 +1,54 @@
+"""Tracks from links (`assignment/tracks.py`): which report may duplicate which, and a track's
+chain of detections read both ways."""
+
+import numpy as np
+
+from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.associators.assignment.tracks import (
+    duplicate_followers,
+    successors,
+    tracks_from_links,
+)
+from roadlink.association.detections import Detections
+
+
+def three_sensors() -> Detections:
+    # Two vehicles (a: rows 0, 2, 4; b: rows 1, 3, 5) past sensors at 0, 100 and 200 m.
+    return Detections.from_columns(
+        position=[0.0, 0.0, 100.0, 100.0, 200.0, 200.0],
+        velocity=[20.0, 25.0, 20.0, 25.0, 20.0, 25.0],
+        timestamp=[0.0, 1.0, 5.0, 5.0, 10.0, 9.0],
+    )
+
+
+def test_a_report_moments_after_one_of_the_same_speed_may_duplicate_it():
+    d = Detections.from_columns(
+        position=[0.0, 0.0, 0.0, 0.0, 100.0],
+        velocity=[20.0, 20.5, 30.0, 20.0, 20.0],
+        timestamp=[0.0, 0.2, 0.3, 5.0, 5.0],
+    )
+    params = AssignmentParams(duplicate_window=0.5, duplicate_velocity_tolerance=0.05)
+    # Row 1 copies row 0 (0.2 s later, 2.5 % faster); row 2 is too fast to be a copy; row 3
+    # comes too late; row 4 is alone at its sensor.
+    assert duplicate_followers(arrange(d, params), params).tolist() == [-1, 0, -1, -1, -1]
+    off = AssignmentParams(duplicate_window=0.0)
+    assert duplicate_followers(arrange(d, off), off).tolist() == [-1] * 5
+
+
+def test_successors_follow_each_track_in_road_order():
+    s = arrange(three_sensors(), AssignmentParams())
+    track = np.array([0, 1, 0, 1, 0, -1])
+    nxt, prv = successors(s, track)
+    assert nxt.tolist() == [2, 3, 4, -1, -1, -1]
+    assert prv.tolist() == [-1, -1, 0, 1, 2, -1]
+
+
+def test_tracks_from_links_number_the_chains_and_leave_the_rest_out():
+    s = arrange(three_sensors(), AssignmentParams())
+    prv = np.array([-1, -1, 0, 1, 2, 3])
+    in_track = np.array([True, True, True, True, True, False])
+    assert tracks_from_links(s, prv, in_track).tolist() == [0, 1, 0, 1, 0, -1]
+    # Read back, the links are what they were built from.
+    nxt, back = successors(s, tracks_from_links(s, prv, np.ones(6, dtype=bool)))
+    assert back.tolist() == prv.tolist() and nxt.tolist() == [2, 3, 4, 5, -1, -1]

@@ -1,0 +1,82 @@
+"""The optional detector features' columns (`roadlink.association.feature_columns`): None or a
+blank is "not reported", anything else must be a valid lane, length or class."""
+
+import math
+
+import numpy as np
+import pytest
+
+from roadlink.association.columns import Problem
+from roadlink.association.detections import DetectionError, Detections
+from roadlink.association.feature_columns import (
+    MAX_CLASS_CHARS,
+    MAX_LANE,
+    MAX_LENGTH,
+    NO_LANE,
+    class_column,
+    lane_column,
+    length_column,
+)
+
+
+def test_lanes_are_whole_numbers_with_blanks_unreported():
+    problems: list[Problem] = []
+    lanes = lane_column(5, [0, None, "2", "", MAX_LANE], problems)
+    assert problems == []
+    assert lanes.dtype == np.int64 and lanes.tolist() == [0, NO_LANE, 2, NO_LANE, MAX_LANE]
+
+
+def test_no_lane_in_an_integer_array_means_unreported_as_detections_hold_it():
+    problems: list[Problem] = []
+    lanes = lane_column(3, np.array([NO_LANE, 1, NO_LANE], dtype=np.int64), problems)
+    assert problems == [] and lanes.tolist() == [NO_LANE, 1, NO_LANE]
+
+
+def test_lengths_keep_nan_where_unmeasured():
+    problems: list[Problem] = []
+    lengths = length_column(4, [4.5, "", None, MAX_LENGTH], problems)
+    assert problems == []
+    assert lengths[[0, 3]].tolist() == [4.5, MAX_LENGTH] and np.isnan(lengths[[1, 2]]).all()
+
+
+def test_problems_in_a_column_with_blanks_are_numbered_as_input_rows():
+    problems: list[Problem] = []
+    length_column(5, [None, "", 4.0, "x", -1.0], problems)
+    assert [(p.row, p.field) for p in problems] == [(4, "length"), (5, "length")]
+
+
+def test_classes_are_stripped_short_printable_words():
+    problems: list[Problem] = []
+    classes = class_column(4, ["car", None, " truck ", "x" * MAX_CLASS_CHARS], problems)
+    assert problems == []
+    assert classes.tolist() == ["car", None, "truck", "x" * MAX_CLASS_CHARS]
+
+
+@pytest.mark.parametrize(
+    ("column", "bad"),
+    [
+        ("lane", 0.5),
+        ("lane", -1),
+        ("lane", 256),
+        ("lane", "x"),
+        ("lane", True),
+        ("length", 0.0),
+        ("length", -4.0),
+        ("length", 1e3),
+        ("length", "nan"),
+        ("length", math.inf),
+        ("vehicle_class", "x" * 33),
+        ("vehicle_class", 5),
+        ("vehicle_class", "car\x00x"),
+    ],
+)
+def test_bad_features_name_row_and_field(column, bad):
+    good = {"lane": 1, "length": 4.0, "vehicle_class": "car"}[column]
+    with pytest.raises(DetectionError) as excinfo:
+        Detections.from_columns(
+            position=[0.0, 100.0, 0.0, 100.0],
+            velocity=[20.0, 21.0, 30.0, 29.0],
+            timestamp=[1.0, 6.0, 2.0, 5.5],
+            **{column: [good, good, bad, good]},
+        )
+    assert [(p.row, p.field) for p in excinfo.value.problems] == [(3, column)]

@@ -1,0 +1,49 @@
+"""`associate` (`association/pipeline.py`): the named associator over the detections, its
+parameters checked, the grouping scored."""
+
+import pytest
+
+from roadlink.association import Detections, associate
+from roadlink.association.associators import AssociationError
+from roadlink.association.pipeline import parse_params
+from roadlink.simulation import preset, simulate
+
+
+def paper_data(name="large", seed=0, **overrides):
+    return simulate(preset(name, **overrides), seed=seed).detections
+
+
+def test_unknown_associator_lists_the_known_ones():
+    with pytest.raises(AssociationError, match=r"known: .*kmeans"):
+        associate(paper_data(), "nope")
+
+
+@pytest.mark.parametrize("name", ["kmeans", "kmeans++", "assignment", "svm-linear"])
+def test_empty_input_is_refused_saying_so(name):
+    with pytest.raises(AssociationError, match="there are no detections to associate"):
+        associate(Detections.from_columns([], [], []), name)
+
+
+def test_parameters_are_converted_from_text_and_refused_naming_the_parameter():
+    assert parse_params("kmeans", {"backproject": "false"}).model_dump()["backproject"] is False
+    with pytest.raises(
+        AssociationError, match=r"invalid parameters for 'kmeans': parameter 'nope'"
+    ):
+        parse_params("kmeans", {"nope": 1})
+    with pytest.raises(AssociationError, match="invalid parameters for 'assignment'"):
+        associate(paper_data(), "assignment", {"gate_cost": -1})
+
+
+def test_one_sensor_position_is_refused_saying_so():
+    one = Detections.from_columns([0.0, 0.0], [20.0, 21.0], [1.0, 2.0])
+    with pytest.raises(AssociationError, match="at least two"):
+        associate(one, "kmeans")
+
+
+def test_unsupervised_associators_never_see_the_labels():
+    d = paper_data()
+    labelled = associate(d, "kmeans++")
+    unlabelled = associate(d.without_labels(), "kmeans++")
+    assert labelled.groups.tolist() == unlabelled.groups.tolist()
+    assert labelled.metrics is not None and unlabelled.metrics is None
+    assert labelled.params == unlabelled.params

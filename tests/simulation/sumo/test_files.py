@@ -1,0 +1,125 @@
+"""SUMO's input files and detector output (`simulation/sumo/files.py`): the network, routes and
+loops written for a scenario, and the loops' output read back as detections."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from roadlink.simulation import sumo
+from roadlink.simulation.sumo import (
+    SUMO_SCENARIOS,
+    Bottleneck,
+    detectors_xml,
+    network_xml,
+    parse_detector_output,
+    road_segments,
+    routes_xml,
+    sumo_scenario,
+)
+
+DATA = Path(__file__).parents[1] / "data"
+
+
+def test_detector_output_becomes_one_detection_per_vehicle_and_sensor():
+    xml = (DATA / "instant_loops.xml").read_bytes()
+    d = parse_detector_output(xml, {"S3": 700.0, "S4": 950.0})
+    rows = list(zip(d.position, d.sensor_id, d.target, d.timestamp, d.velocity, strict=True))
+    assert rows == [
+        (700.0, "S3", "car.30", 64.49, 25.39),
+        (700.0, "S3", "car.31", 69.85, 26.79),
+        (700.0, "S3", "truck.4", 86.25, 20.65),
+        (950.0, "S4", "car.30", 75.49, 21.56),
+        (950.0, "S4", "car.31", 79.33, 24.48),
+        # truck.4 changes lane over S4: lane 1's loop saw it first, lane 0's again at 98.50.
+        (950.0, "S4", "truck.4", 98.33, 20.69),
+    ]
+
+
+def test_detector_output_is_cut_to_the_window_and_timed_from_its_start():
+    xml = (DATA / "instant_loops.xml").read_bytes()
+    d = parse_detector_output(xml, {"S3": 700.0, "S4": 950.0}, window=(70.0, 98.4))
+    assert list(d.target) == ["truck.4", "car.30", "car.31", "truck.4"]
+    np.testing.assert_allclose(d.timestamp, [16.25, 5.49, 9.33, 28.33])
+
+
+def test_detector_output_names_an_unknown_detector():
+    xml = (DATA / "instant_loops.xml").read_bytes()
+    with pytest.raises(ValueError, match="detector 'S4:2' belongs to no known sensor"):
+        parse_detector_output(xml, {"S3": 700.0})
+
+
+def test_a_vehicle_entering_a_loop_at_standstill_reports_a_small_positive_speed():
+    xml = (
+        '<instantE1><instantOut id="S1:0" time="5.00" state="enter" vehID="car.1" '
+        'speed="0.00"/></instantE1>'
+    )
+    d = parse_detector_output(xml, {"S1": 100.0})
+    assert d.velocity.tolist() == [sumo.MIN_REPORTED_SPEED]
+
+
+def test_with_features_each_detection_carries_its_loop_lane_and_the_vehicle_length_and_class():
+    xml = (DATA / "instant_loops.xml").read_bytes()
+    plain = parse_detector_output(xml, {"S3": 700.0, "S4": 950.0})
+    assert plain.features == ()
+    d = parse_detector_output(xml, {"S3": 700.0, "S4": 950.0}, features=True)
+    assert d.timestamp.tolist() == plain.timestamp.tolist()
+    # truck.4 is first seen by lane 1's loop at S4 (it changes lane over the sensor).
+    rows = list(zip(d.target, d.lane.tolist(), d.length.tolist(), d.vehicle_class, strict=True))
+    assert [r for r in rows if r[0] == "truck.4"] == [
+        ("truck.4", 0, 12.0, "truck"),
+        ("truck.4", 1, 12.0, "truck"),
+    ]
+    assert set(d.vehicle_class) == {"car", "truck"}
+
+
+def test_with_features_each_class_is_a_distribution_of_spread_lengths():
+    scenario = sumo_scenario("sumo-freeflow", features=True, vehicles=sumo.mix(car=0.9, van=0.1))
+    routes = routes_xml(scenario)
+    assert routes.count("<vTypeDistribution") == 2
+    assert '<flow id="car" type="car"' in routes  # labels stay car.N
+    car_lengths = sorted(
+        float(t.split('length="')[1].split('"')[0]) for t in routes.splitlines() if 'id="car_' in t
+    )
+    assert len(car_lengths) == sumo.files.LENGTH_TYPES
+    assert 3.6 < car_lengths[0] < 3.7 and 5.3 < car_lengths[-1] < 5.4
+    assert "vTypeDistribution" not in routes_xml(sumo_scenario("sumo-freeflow"))
+
+
+def test_a_bottleneck_cuts_the_road_into_three_edges():
+    scenario = SUMO_SCENARIOS["sumo-bottleneck"]
+    segments = road_segments(scenario)
+    assert [(s.start, s.end, s.lanes) for s in segments] == [
+        (0.0, 2000.0, 3),
+        (2000.0, 2600.0, 1),
+        (2600.0, 3000.0, 3),
+    ]
+    assert segments[1].speed_limit == pytest.approx(22.22)
+    nodes, edges = network_xml(scenario)
+    assert nodes.count("<node ") == 4 and edges.count("<edge ") == 3
+    assert 'route id="road" edges="e0 e1 e2"' in routes_xml(scenario)
+
+
+def test_every_lane_at_every_sensor_has_a_loop_placed_on_the_lane_geometry():
+    scenario = sumo_scenario(
+        "sumo-freeflow",
+        sensor_positions=[500.0, 1500.0, 2500.0],
+        bottleneck=Bottleneck(start=1000.0, end=2000.0, lanes=2),
+    )
+    # What netconvert writes: each edge shortened by its junctions (lane shapes start later).
+    net = "<net>" + "".join(
+        f'<edge id="{edge}"><lane id="{edge}_{k}" length="{length}" '
+        f'shape="{x0},{-1.6 - 3.2 * k} {x0 + length},{-1.6 - 3.2 * k}"/></edge>'
+        for edge, lanes, x0, length in [("e0", 3, 0.0, 996.0), ("e1", 2, 1004.0, 992.0)]
+        for k in range(lanes)
+    )
+    net += '<edge id="e2"><lane id="e2_0" length="996" shape="2004,-1.6 3000,-1.6"/>'
+    net += '<lane id="e2_1" length="996" shape="2004,-4.8 3000,-4.8"/>'
+    net += '<lane id="e2_2" length="996" shape="2004,-8 3000,-8"/></edge></net>'
+    xml = detectors_xml(scenario, net, "out.xml")
+    assert xml.count("<instantInductionLoop ") == 3 + 2 + 3
+    assert 'id="S2:1" lane="e1_1" pos="496.00"' in xml
+    assert 'id="S3:2" lane="e2_2" pos="496.00"' in xml
+    assert 'id="S1:0" lane="e0_0" pos="500.00"' in xml
