@@ -9,7 +9,13 @@ from typing import Annotated
 
 import typer
 
-from roadlink.association import AssociationResult, DetectionError, Detections, associate
+from roadlink.association import (
+    AssociationResult,
+    DetectionError,
+    Detections,
+    associate,
+    key_values,
+)
 from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR, AssociationError
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.cli import app
@@ -39,13 +45,10 @@ def plot_format_of(path: Path) -> str:
 
 def parse_param_options(values: list[str]) -> dict[str, str]:
     """`key=value` options into a dict; the associator's schema converts the values."""
-    params: dict[str, str] = {}
-    for item in values:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise fail(f"--param takes key=value, got '{item}'")
-        params[key.strip()] = value.strip()
-    return params
+    try:
+        return key_values(values)
+    except ValueError as exc:
+        raise fail(f"--param: {exc}") from None
 
 
 def associate_file(file: Path, associator: str, param: list[str]) -> AssociationResult:
