@@ -151,10 +151,10 @@ def associate_command(
     elif as_csv:
         sys.stdout.write(result.to_matrix_csv())
     else:
-        _print_summary(result.to_dict())
+        print_summary(result.to_dict())
 
 
-def _print_summary(result: dict[str, object]) -> None:
+def print_summary(result: dict[str, object]) -> None:
     typer.echo(
         f"{result['associator']}: {result['n_detections']} detections -> "
         f"{result['n_targets']} targets, {len(result['unassigned'])} unassigned"  # type: ignore[arg-type]
