@@ -95,14 +95,15 @@ async def create_batch(
         )
     if not body.strip():
         raise ApiProblem(400, "the request body is empty: send detections as JSON or CSV")
-    associate_csv = _csv_association(associator, param or [])
+    # Checked before the body is parsed: a malformed `param` is the query's fault, not a row's.
+    csv_job = _csv_association(associator, param or []) if content_type == "text/csv" else None
     digest = hashlib.sha256(content_type.encode() + b"\0" + body).hexdigest()
 
     def parse(deployment: Deployment) -> ParsedBatch:
         limit = settings.max_batch_detections
         if content_type == "text/csv":
             detections = parse_csv_batch(body, deployment.sensors, limit)
-            return ParsedBatch(detections, "csv", associate_csv)
+            return ParsedBatch(detections, "csv", csv_job)
         detections, associate = parse_json_batch(body, deployment.sensors, limit)
         return ParsedBatch(detections, "json", associate)
 
