@@ -4,6 +4,7 @@ each test run creates and drops its own uniquely named database there."""
 
 from __future__ import annotations
 
+import os
 import threading
 import uuid
 from collections.abc import Iterator
@@ -41,6 +42,20 @@ TABLES_CHILD_FIRST = (
     "job",
     "deployment",
 )
+
+
+@pytest.fixture(scope="session", autouse=True)
+def worker_heartbeats(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Workers the tests start (in process or not) beat into a directory of this run's, not
+    the user's default one: tests kill workers, which leave their files behind."""
+    name = "ROADLINK_WORKER_HEARTBEAT_DIR"
+    before = os.environ.get(name)
+    os.environ[name] = str(tmp_path_factory.mktemp("heartbeats"))
+    yield
+    if before is None:
+        del os.environ[name]
+    else:
+        os.environ[name] = before
 
 
 @pytest.fixture

@@ -7,6 +7,7 @@ the API on 127.0.0.1:8000 and one worker per core.
 from __future__ import annotations
 
 import os
+import tempfile
 from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
@@ -15,6 +16,11 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 def _cores() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
+
+
+def _heartbeat_dir() -> str:
+    # Per user, so that one user's workers never vouch for another's on a shared host.
+    return os.path.join(tempfile.gettempdir(), f"roadlink-workers-{os.getuid()}")
 
 
 class Settings(BaseSettings):
@@ -120,6 +126,14 @@ class Settings(BaseSettings):
         description="The service's address as its users reach it (e.g. https://roadlink.example; "
         "behind a proxy, the proxy's), for the links it hands out. Unset, links are relative "
         "to the server the client asked. Never taken from the request's Host header.",
+    )
+    worker_heartbeat_dir: str = Field(
+        default_factory=_heartbeat_dir,
+        description="Where each worker process touches a file as it runs, so that "
+        "`roadlink worker --check` (a container's health check) can tell it is alive.",
+        json_schema_extra={
+            "shown_default": "roadlink-workers-<uid> in the system's temporary directory"
+        },
     )
     idempotency_hours: float = Field(
         default=24.0,

@@ -7,8 +7,12 @@ joined, exec-form arguments decoded), the compose file as Compose loads it, and 
 
 from __future__ import annotations
 
+import http.server
 import json
 import re
+import subprocess
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -137,3 +141,48 @@ def commands_in_help(help_text: str) -> set[str]:
         return set()
     edge = min(indent for indent, _ in rows)
     return {name for indent, name in rows if indent == edge}
+
+
+class HealthEndpoint(http.server.BaseHTTPRequestHandler):
+    """Answers GET on the server's `probed_path` with the status the test sets, 404 elsewhere."""
+
+    server: ProbedServer
+
+    def do_GET(self) -> None:
+        # Recorded before answering: once answered, the probe may exit and the test read the list
+        # before this thread had appended to it.
+        self.server.requested.append(self.path)
+        status = self.server.status if self.path == self.server.probed_path else 404
+        self.send_response(status)
+        self.end_headers()
+
+    def log_message(self, format: str, *args: object) -> None:
+        """Silence the per-request log line."""
+
+
+class ProbedServer(http.server.ThreadingHTTPServer):
+    probed_path: str
+    status = 200
+    requested: list[str]
+
+
+def assert_probe_tells_healthy_from_not(
+    path: str, probe: Callable[[str], subprocess.CompletedProcess[str]]
+) -> None:
+    """`probe(port)`, a health check run against a local endpoint on `path`, exits 0 on a 200
+    and non-zero on a 503 and on a refused connection."""
+    server = ProbedServer(("127.0.0.1", 0), HealthEndpoint)
+    server.probed_path, server.requested = path, []
+    port = str(server.server_address[1])
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        healthy = probe(port)
+        assert healthy.returncode == 0, healthy.stderr
+        assert server.requested == [path]
+        server.status = 503
+        assert probe(port).returncode != 0
+    finally:
+        server.shutdown()
+        server.server_close()
+    # Nothing listens any more: a refused connection is unhealthy too.
+    assert probe(port).returncode != 0

@@ -10,6 +10,10 @@ from __future__ import annotations
 
 import copy
 import json
+import os
+import subprocess
+import sys
+import time
 from importlib import resources
 from typing import Any
 
@@ -18,9 +22,13 @@ import pytest
 from typer.testing import CliRunner
 
 from roadlink.cli import app
+from roadlink.cli.server import graceful_shutdown_seconds
+from roadlink.settings import Settings
 from tests.deploy.deploy_files import (
     OPENAPI_SPEC,
+    REPO_ROOT,
     ROADLINK_SERVICES,
+    assert_probe_tells_healthy_from_not,
     cli_commands,
     healthcheck_url,
     read_compose,
@@ -120,14 +128,61 @@ def test_worker_service_scales(compose):
     assert worker["environment"]["ROADLINK_WORKERS"] == "1"
 
 
-def test_services_without_http_disable_the_images_healthz_probe(compose):
+def test_services_without_http_do_not_inherit_the_images_healthz_probe(compose):
     # The image's HEALTHCHECK probes /healthz; a worker or the migrate step serves no HTTP, so the
     # inherited probe would mark them unhealthy forever.
-    for name in ("migrate", "worker"):
-        assert compose["services"][name]["healthcheck"] == {"disable": True}
+    assert compose["services"]["migrate"]["healthcheck"] == {"disable": True}
+    assert compose["services"]["worker"]["healthcheck"]["test"] == [
+        "CMD",
+        "roadlink",
+        "worker",
+        "--check",
+    ]
 
 
-def test_api_answers_http_only_and_probes_healthz_on_its_port(compose):
+@pytest.mark.parametrize("age_seconds, exit_code", [(0, 0), (3600, 1)])
+def test_the_workers_probe_tells_a_heartbeating_worker_from_a_stale_one(
+    compose, tmp_path, age_seconds, exit_code
+):
+    # The probe's own argv, run as the container runs it (a file as a worker leaves it: see
+    # tests/cli/test_server_commands.py for a real worker).
+    probe = compose["services"]["worker"]["healthcheck"]["test"]
+    heartbeat = tmp_path / "worker-7"
+    heartbeat.touch()
+    then = time.time() - age_seconds
+    os.utime(heartbeat, (then, then))
+    env = {"ROADLINK_WORKER_HEARTBEAT_DIR": str(tmp_path)}
+    assert CliRunner().invoke(app, probe[2:], env=env).exit_code == exit_code
+
+
+def test_every_roadlink_setting_can_come_from_the_env_file(compose):
+    for name in ROADLINK_SERVICES:
+        service = compose["services"][name]
+        assert service["env_file"] == [{"path": ".env", "required": False}]
+        # `environment` wins over the env file: only what compose must own is pinned there.
+        pinned = {k for k in service["environment"] if k.startswith("ROADLINK_")}
+        assert pinned <= {"ROADLINK_DATABASE_URL", "ROADLINK_PORT", "ROADLINK_WORKERS"}
+    assert ".env" in (REPO_ROOT / ".dockerignore").read_text().split(), "a .env holds secrets"
+
+
+def test_stopping_the_api_waits_for_its_longest_request(compose):
+    grace = compose["services"]["api"]["stop_grace_period"]
+    assert grace.endswith("s")
+    assert float(grace[:-1]) > graceful_shutdown_seconds(Settings())
+
+
+def test_the_api_probe_tells_ready_from_not(compose):
+    # The probe's own argv, with the port from ROADLINK_PORT as in the container.
+    argv = [sys.executable, *compose["services"]["api"]["healthcheck"]["test"][2:]]
+
+    def probe(port: str) -> subprocess.CompletedProcess[str]:
+        env = {**os.environ, "ROADLINK_PORT": port}
+        return subprocess.run(argv, env=env, capture_output=True, text=True, timeout=30)
+
+    assert_probe_tells_healthy_from_not("/readyz", probe)
+
+
+def test_api_answers_http_only_and_probes_readyz_on_its_port(compose):
     api = compose["services"]["api"]
     command = api["command"]
     assert command[0] == "serve"
@@ -137,7 +192,7 @@ def test_api_answers_http_only_and_probes_healthz_on_its_port(compose):
     assert [published.rsplit(":", 1)[1] for published in api["ports"]] == [port]
     probe = api["healthcheck"]["test"]
     assert probe[0] == "CMD"
-    assert healthcheck_url(probe[1:], api["environment"]) == f"http://127.0.0.1:{port}/healthz"
+    assert healthcheck_url(probe[1:], api["environment"]) == f"http://127.0.0.1:{port}/readyz"
 
 
 def test_roadlink_services_share_the_image_and_the_postgres_database(compose):
@@ -164,11 +219,12 @@ def test_every_named_volume_is_declared(compose):
                 assert source in declared, f"{name} mounts undeclared volume {source}"
 
 
-def test_healthz_is_a_path_of_the_app():
+def test_the_probed_paths_are_paths_of_the_app():
     if not OPENAPI_SPEC.exists():
         pytest.skip("openapi/openapi.json is not in this checkout yet (the REST service lands it)")
     paths = json.loads(OPENAPI_SPEC.read_text())["paths"]
-    assert "/healthz" in paths, "the image and compose.yaml probe /healthz; the app must serve it"
+    assert "/healthz" in paths, "the image probes /healthz; the app must serve it"
+    assert "/readyz" in paths, "compose.yaml's api probes /readyz; the app must serve it"
 
 
 def test_the_commands_compose_runs_exist_in_roadlink():

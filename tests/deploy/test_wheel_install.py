@@ -10,13 +10,11 @@ worker process, a job run to completion through it.
 
 from __future__ import annotations
 
-import http.server
 import json
 import os
 import socket
 import subprocess
 import sys
-import threading
 import time
 import uuid
 import zipfile
@@ -33,6 +31,7 @@ from roadlink.simulation import preset, simulate
 from tests.deploy.deploy_files import (
     MIGRATIONS_DIR,
     REPO_ROOT,
+    assert_probe_tells_healthy_from_not,
     commands_in_help,
     read_dockerfile,
 )
@@ -131,28 +130,6 @@ def test_installed_roadlink_command_runs_with_the_postgres_driver(clean_install)
     assert driver.returncode == 0, f"the postgres extra did not install psycopg: {driver.stderr}"
 
 
-class HealthEndpoint(http.server.BaseHTTPRequestHandler):
-    """Answers GET /healthz with the status the test sets on the server, 404 elsewhere."""
-
-    server: ProbedServer
-
-    def do_GET(self) -> None:
-        # Recorded before answering: once answered, the probe may exit and the test read the list
-        # before this thread had appended to it.
-        self.server.requested.append(self.path)
-        status = self.server.healthz_status if self.path == "/healthz" else 404
-        self.send_response(status)
-        self.end_headers()
-
-    def log_message(self, format: str, *args: object) -> None:
-        """Silence the per-request log line."""
-
-
-class ProbedServer(http.server.ThreadingHTTPServer):
-    healthz_status = 200
-    requested: list[str]
-
-
 def test_dockerfile_healthcheck_command_tells_healthy_from_not(clean_install):
     (healthcheck,) = [i for i in read_dockerfile() if i.keyword == "HEALTHCHECK"]
     probe = healthcheck.exec_form()
@@ -160,23 +137,9 @@ def test_dockerfile_healthcheck_command_tells_healthy_from_not(clean_install):
     # The image's `python` is the interpreter roadlink is installed in: the clean venv's here.
     argv = [clean_install.python, *probe[1:]]
 
-    server = ProbedServer(("127.0.0.1", 0), HealthEndpoint)
-    server.requested = []
-    port = server.server_address[1]
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    environment = clean_environment(ROADLINK_PORT=str(port))
-    try:
-        healthy = run(argv, timeout=30, env=environment)
-        assert healthy.returncode == 0, healthy.stderr
-        assert server.requested == ["/healthz"]
-        server.healthz_status = 503
-        assert run(argv, timeout=30, env=environment).returncode != 0
-    finally:
-        server.shutdown()
-        server.server_close()
-    # Nothing listens any more: a refused connection is unhealthy too.
-    assert run(argv, timeout=30, env=environment).returncode != 0
+    assert_probe_tells_healthy_from_not(
+        "/healthz", lambda port: run(argv, timeout=30, env=clean_environment(ROADLINK_PORT=port))
+    )
 
 
 @pytest.fixture

@@ -1,7 +1,7 @@
 """The association core: pure numpy / scipy / scikit-learn; knows nothing of HTTP or SQL."""
 
 from roadlink.association.detections import CLUTTER, DetectionError, Detections, Problem
-from roadlink.association.pipeline import associate, parse_params
+from roadlink.association.pipeline import associate, key_values, parse_params
 from roadlink.association.result import AssociationResult
 
 __all__ = [
@@ -11,5 +11,6 @@ __all__ = [
     "Detections",
     "Problem",
     "associate",
+    "key_values",
     "parse_params",
 ]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 from pydantic import ValidationError
@@ -28,6 +28,18 @@ def parse_params(associator: str, params: Mapping[str, Any] | None) -> Associato
             f"parameter '{'.'.join(map(str, e['loc']))}': {e['msg']}" for e in exc.errors()
         )
         raise AssociationError(f"invalid parameters for '{associator}': {problems}") from None
+
+
+def key_values(items: Iterable[str]) -> dict[str, str]:
+    """`key=value` strings (the CLI's `--param`, a CSV batch's `param`) into a dict, whose values
+    `parse_params` then converts. ValueError names the first item without an `=` or a key."""
+    params: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"a parameter is key=value, got '{item}'")
+        params[key.strip()] = value.strip()
+    return params
 
 
 def associate(

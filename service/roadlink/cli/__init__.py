@@ -12,6 +12,15 @@ app = typer.Typer(
 )
 
 # Sub-command modules register themselves on import.
-from roadlink.cli import analysis, config, keys, locate, reproduce, server, sumo  # noqa: E402,F401
+from roadlink.cli import (  # noqa: E402,F401
+    analysis,
+    config,
+    keys,
+    locate,
+    remote,
+    reproduce,
+    server,
+    sumo,
+)
 
 __all__ = ["app"]

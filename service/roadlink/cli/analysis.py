@@ -10,7 +10,13 @@ from typing import Annotated
 import typer
 from pydantic import ValidationError
 
-from roadlink.association import AssociationResult, DetectionError, Detections, associate
+from roadlink.association import (
+    AssociationResult,
+    DetectionError,
+    Detections,
+    associate,
+    key_values,
+)
 from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR, AssociationError
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.cli import app
@@ -53,13 +59,10 @@ def plot_format_of(path: Path) -> str:
 
 def parse_param_options(values: list[str]) -> dict[str, str]:
     """`key=value` options into a dict; the associator's schema converts the values."""
-    params: dict[str, str] = {}
-    for item in values:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise fail(f"--param takes key=value, got '{item}'")
-        params[key.strip()] = value.strip()
-    return params
+    try:
+        return key_values(values)
+    except ValueError as exc:
+        raise fail(f"--param: {exc}") from None
 
 
 def associate_file(file: Path, associator: str, param: list[str]) -> AssociationResult:
@@ -192,10 +195,10 @@ def associate_command(
     elif as_csv:
         sys.stdout.write(result.to_matrix_csv())
     else:
-        _print_summary(result.to_dict())
+        print_summary(result.to_dict())
 
 
-def _print_summary(result: dict[str, object]) -> None:
+def print_summary(result: dict[str, object]) -> None:
     typer.echo(
         f"{result['associator']}: {result['n_detections']} detections -> "
         f"{result['n_targets']} targets, {len(result['unassigned'])} unassigned"  # type: ignore[arg-type]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import multiprocessing
 import multiprocessing.process
 import os
@@ -12,7 +13,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -20,6 +21,9 @@ from roadlink.cli import app
 from roadlink.settings import Settings
 
 log = logging.getLogger("roadlink")
+
+# Beyond the longest `?wait=`: time for the answer itself once the wait ends.
+GRACEFUL_SHUTDOWN_MARGIN_SECONDS = 5.0
 
 # Python's default is 5 ms (see `serve_command`).
 API_SWITCH_INTERVAL_SECONDS = 0.001
@@ -160,15 +164,27 @@ def serve_command(
         # every request for 100-370 ms at a time (measured with benchmarks/soak.py).
         gc.collect()
         gc.freeze()
-        uvicorn.run(
-            api,
-            host=settings.host,
-            port=settings.port,
-            log_level=settings.log_level,
-            timeout_keep_alive=settings.keep_alive_seconds,
-        )
+        uvicorn.run(api, **uvicorn_options(settings))
     finally:
         pool.stop()
+
+
+def uvicorn_options(settings: Settings) -> dict[str, Any]:
+    """How `serve` runs uvicorn."""
+    return {
+        "host": settings.host,
+        "port": settings.port,
+        "log_level": settings.log_level,
+        "timeout_keep_alive": settings.keep_alive_seconds,
+        "timeout_graceful_shutdown": graceful_shutdown_seconds(settings),
+    }
+
+
+def graceful_shutdown_seconds(settings: Settings) -> int:
+    """How long a stopping API lets requests in flight finish: a `?wait=` request may take
+    ROADLINK_MAX_WAIT_SECONDS, and draining must not cut it, but must not hang for ever on a
+    request that never ends either (uvicorn's default)."""
+    return math.ceil(settings.max_wait_seconds + GRACEFUL_SHUTDOWN_MARGIN_SECONDS)
 
 
 @app.command("worker")
@@ -177,9 +193,20 @@ def worker_command(
         int | None,
         typer.Option(min=1, help="Worker processes to run [ROADLINK_WORKERS; default: cores]."),
     ] = None,
+    check: Annotated[
+        bool,
+        typer.Option(
+            "--check",
+            help="Run no worker: exit 0 if a worker process on this host is alive (its "
+            "heartbeat file in ROADLINK_WORKER_HEARTBEAT_DIR touched within "
+            "ROADLINK_LEASE_SECONDS), else 1. For container health checks.",
+        ),
+    ] = False,
 ) -> None:
     """Run workers only, against ROADLINK_DATABASE_URL (to scale out beside `serve`)."""
     settings = _settings(workers=workers)
+    if check:
+        _check_workers(settings)
     workers = settings.workers
     if workers < 1:
         typer.echo(
@@ -203,6 +230,21 @@ def worker_command(
         pass
     finally:
         pool.stop()
+
+
+def _check_workers(settings: Settings) -> None:
+    from roadlink.queue.liveness import live_workers
+
+    alive = live_workers(settings.worker_heartbeat_dir, within_seconds=settings.lease_seconds)
+    if not alive:
+        typer.echo(
+            f"no worker heartbeat within {settings.lease_seconds:g} s in "
+            f"{settings.worker_heartbeat_dir}",
+            err=True,
+        )
+        raise typer.Exit(code=1)
+    typer.echo(f"{len(alive)} worker process(es) alive: {', '.join(alive)}")
+    raise typer.Exit(code=0)
 
 
 @app.command("migrate")

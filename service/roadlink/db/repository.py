@@ -221,12 +221,19 @@ def get_job(session: Session, *, job_id: uuid.UUID) -> Job | None:
 
 
 def list_jobs(
-    session: Session, *, deployment_id: uuid.UUID | None, limit: int, offset: int
+    session: Session,
+    *,
+    deployment_id: uuid.UUID | None,
+    limit: int,
+    offset: int,
+    state: JobState | None = None,
 ) -> Sequence[Job]:
-    """Jobs, newest first, optionally of one deployment."""
+    """Jobs, newest first, optionally of one deployment and in one state."""
     query = select(Job).order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)
     if deployment_id is not None:
         query = query.where(Job.deployment_id == deployment_id)
+    if state is not None:
+        query = query.where(Job.state == state)
     return session.scalars(query).all()
 
 

@@ -27,6 +27,7 @@ from roadlink.queue.associator_process import (
     Succeeded,
     TimedOut,
 )
+from roadlink.queue.liveness import HeartbeatFile
 from roadlink.queue.transitions import (
     ClaimedJob,
     claim_next_job,
@@ -54,6 +55,7 @@ class Worker:
         self.stopping = threading.Event()
         self.associator_process = AssociatorProcess()
         self._last_rescue = 0.0
+        self.liveness = HeartbeatFile(settings.worker_heartbeat_dir, settings.heartbeat_seconds)
 
     def run(self, wakeup: Wakeup | None = None) -> None:
         """Work until `stopping` is set."""
@@ -62,10 +64,12 @@ class Worker:
         log.info("worker %s started", self.id)
         try:
             while not self.stopping.is_set():
+                self.liveness.beat()
                 if not self.run_once():
                     wakeup.wait(self.settings.poll_seconds)
         finally:
             wakeup.close()
+            self.liveness.remove()
             log.info("worker %s stopped", self.id)
 
     def close(self) -> None:
@@ -198,6 +202,7 @@ class Worker:
             if not ours:
                 lost.set()
                 return
+            self.liveness.beat()
 
     def _interrupted(self, job: ClaimedJob, lost: threading.Event) -> None:
         if lost.is_set():

@@ -47,6 +47,24 @@ def test_a_csv_batch(client: TestClient, deployment: dict[str, Any], paper_csv: 
     assert response.json()["source"] == "csv" and response.json()["job"] is None
 
 
+def test_a_csv_batch_asks_for_its_job_in_the_query(
+    client: TestClient, engine: Engine, deployment: dict[str, Any], paper_csv: str
+) -> None:
+    url = f"/v1/deployments/{deployment['id']}/batches"
+    csv = {"content": paper_csv, "headers": {"content-type": "text/csv"}}
+    asked = {"associator": "kmeans", "param": ["n_targets=3", "backproject=false"]}
+    job = client.post(url, params=asked, **csv).json()["job"]
+    assert job["params"]["n_targets"] == 3 and job["params"]["backproject"] is False
+    for query, says in (
+        ({"param": "n_targets=3"}, "`param` needs `associator`"),
+        ({"associator": "kmeans", "param": "n_targets"}, "key=value"),
+        ({"associator": "kmeans", "param": "n_targets=none"}, "n_targets"),
+    ):
+        problem = assert_problem(client.post(url, params=query, **csv), 422)
+        assert says in problem["detail"]
+    assert _counts(engine)[0] == 1  # the refused ones stored nothing
+
+
 def test_invalid_detections_name_row_and_field_and_leave_no_trace(
     client: TestClient, engine: Engine, deployment: dict[str, Any], paper_batch: Detections
 ) -> None:

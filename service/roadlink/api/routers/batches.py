@@ -14,9 +14,11 @@ from roadlink.api.errors import ApiProblem, problem_responses
 from roadlink.api.idempotency_header import IdempotencyDep, media_type
 from roadlink.api.ingest import parse_csv_batch, parse_json_batch
 from roadlink.api.schemas import AssociateRequest, BatchRead, batch_read
+from roadlink.association import key_values
 from roadlink.db import repository
 from roadlink.db.models import Deployment
 from roadlink.services.batches import ParsedBatch, batch_job, store_batch_once
+from roadlink.services.problems import ProblemItem
 
 router = APIRouter(tags=["batches"])
 
@@ -58,7 +60,15 @@ async def create_batch(
         str | None,
         Query(
             description="With a CSV body: enqueue a job with this associator (its default "
-            "parameters) in the same transaction. JSON bodies use `associate` instead."
+            "parameters, unless `param` gives some) in the same transaction. JSON bodies use "
+            "`associate` instead."
+        ),
+    ] = None,
+    param: Annotated[
+        list[str] | None,
+        Query(
+            description="With a CSV body and `associator`: one of the associator's parameters as "
+            "key=value (repeat for several), as `roadlink associate --param` takes them."
         ),
     ] = None,
 ) -> BatchRead:
@@ -77,13 +87,14 @@ async def create_batch(
         )
     if not body.strip():
         raise ApiProblem(400, "the request body is empty: send detections as JSON or CSV")
+    # Checked before the body is parsed: a malformed `param` is the query's fault, not a row's.
+    csv_job = _csv_association(associator, param or []) if content_type == "text/csv" else None
 
     def parse(deployment: Deployment) -> ParsedBatch:
         limit = settings.max_batch_detections
         if content_type == "text/csv":
             detections = parse_csv_batch(body, deployment.sensors, limit)
-            associate = AssociateRequest(associator=associator) if associator else None
-            return ParsedBatch(detections, "csv", associate)
+            return ParsedBatch(detections, "csv", csv_job)
         detections, associate = parse_json_batch(body, deployment.sensors, limit)
         return ParsedBatch(detections, "json", associate)
 
@@ -101,6 +112,22 @@ async def create_batch(
     if replayed:
         response.headers["Idempotent-Replayed"] = "true"
     return result
+
+
+def _csv_association(associator: str | None, param: list[str]) -> AssociateRequest | None:
+    """The job a CSV batch asks for in its query, if any."""
+    if associator is None:
+        if param:
+            raise _param_problem("`param` needs `associator`: name the associator it is for")
+        return None
+    try:
+        return AssociateRequest(associator=associator, params=key_values(param))
+    except ValueError as exc:
+        raise _param_problem(str(exc)) from None
+
+
+def _param_problem(message: str) -> ApiProblem:
+    return ApiProblem(422, message, errors=[ProblemItem(field="param", message=message)])
 
 
 @router.get(

@@ -105,11 +105,14 @@ def create_job(
 def list_jobs(
     session: SessionDep,
     deployment_id: uuid.UUID | None = Query(default=None, description="Only this deployment's."),
+    state: JobState | None = Query(default=None, description="Only jobs in this state."),
     limit: int = Query(default=100, ge=1, le=1000, description="Page size."),
     offset: int = Query(default=0, ge=0, le=2**31 - 1, description="Jobs to skip."),
 ) -> list[JobRead]:
     """Jobs, newest first."""
-    found = repository.list_jobs(session, deployment_id=deployment_id, limit=limit, offset=offset)
+    found = repository.list_jobs(
+        session, deployment_id=deployment_id, state=state, limit=limit, offset=offset
+    )
     return [JobRead.model_validate(j) for j in found]
 
 

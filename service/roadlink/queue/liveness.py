@@ -1,0 +1,59 @@
+"""Whether a worker process on this host is alive, for `roadlink worker --check` (a container's
+health check).
+
+Each worker process touches a file of its own, `worker-<pid>` in ROADLINK_WORKER_HEARTBEAT_DIR,
+at most once per ROADLINK_HEARTBEAT_SECONDS: from its loop while idle, and from its job's
+heartbeat thread, after the lease was renewed, while it runs a job. A file is the simplest
+witness that needs nothing running to be read: no port in the worker, no database round trip in
+the probe (which would call a worker dead while the database is down, and have a restart fix
+nothing). A worker that has not touched its file for a lease is stuck, or gone: by then it has
+lost its job's lease too. A worker that stops cleanly removes its file; one that is killed
+leaves a file that goes stale.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+PREFIX = "worker-"
+
+
+class HeartbeatFile:
+    """This process's file in `directory`, touched at most every `interval` seconds."""
+
+    def __init__(self, directory: str, interval: float) -> None:
+        self.path = Path(directory) / f"{PREFIX}{os.getpid()}"
+        self.interval = interval
+        self._last = -float("inf")
+
+    def beat(self) -> None:
+        now = time.monotonic()
+        if now - self._last < self.interval:
+            return
+        self._last = now
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.path.touch()
+        except OSError as exc:  # the health check will say so; the worker itself is fine
+            log.warning("cannot touch the heartbeat file %s: %s", self.path, exc)
+
+    def remove(self) -> None:
+        self.path.unlink(missing_ok=True)
+
+
+def live_workers(directory: str, within_seconds: float) -> list[str]:
+    """The heartbeat files in `directory` touched within the last `within_seconds`."""
+    now = time.time()
+    found = []
+    for path in Path(directory).glob(f"{PREFIX}*"):
+        try:
+            if now - path.stat().st_mtime <= within_seconds:
+                found.append(path.name)
+        except FileNotFoundError:  # its worker stopped while we looked
+            continue
+    return sorted(found)

@@ -1,0 +1,122 @@
+"""The remote commands (submit, result, jobs) against a real `roadlink serve` with a worker."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import NamedTuple
+
+import httpx
+import pytest
+from typer.testing import CliRunner
+
+from roadlink.association import associate
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.cli import app
+from roadlink.simulation import preset, simulate
+from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
+
+pytestmark = pytest.mark.slow
+
+runner = CliRunner()
+
+
+class Served(NamedTuple):
+    url: str
+    key: str
+    deployment: str
+    csv: Path
+
+    @property
+    def env(self) -> dict[str, str]:
+        return {"ROADLINK_URL": self.url, "ROADLINK_KEY": self.key}
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    """`roadlink serve --workers 1`, an admin key, a deployment and a labelled CSV."""
+    directory = tmp_path_factory.mktemp("remote")
+    live = LiveServer(directory, sqlite_env(directory), free_port())
+    key = roadlink("keys", "create", "--scope", "admin", env=live.env, cwd=directory).strip()
+    live.start(workers=1)
+    try:
+        headers = {"Authorization": f"Bearer {key}"}
+        created = httpx.post(
+            f"{live.url}/v1/deployments", json={"name": "remote"}, headers=headers, timeout=30
+        )
+        csv = directory / "large.csv"
+        csv.write_text(write_detections_csv(simulate(preset("large"), seed=1).detections))
+        yield Served(live.url, key, created.json()["id"], csv)
+    finally:
+        live.stop()
+
+
+def submitted(served: Served, *extra: str) -> tuple[str, str, str]:
+    """Run `roadlink submit --wait`; the batch id, the job id and what it printed."""
+    argv = ["submit", str(served.csv), "--deployment", served.deployment, "--wait", *extra]
+    done = runner.invoke(app, argv, env=served.env)
+    assert done.exit_code == 0, done.output
+    ids = dict(line.split(" ", 1) for line in done.stdout.splitlines()[:2])
+    return ids["batch"], ids["job"], done.stdout
+
+
+def test_submit_waits_for_the_job_and_prints_the_summary_the_core_gives(served):
+    _, job, printed = submitted(served, "--associator", "kmeans++")
+    expected = associate(read_detections_csv(served.csv.read_text()), "kmeans++")
+    assert f"kmeans++: 100 detections -> {expected.to_dict()['n_targets']} targets" in printed
+    assert f"accuracy={expected.metrics.accuracy:.4f}" in printed  # type: ignore[union-attr]
+    listed = runner.invoke(app, ["jobs", "--state", "succeeded"], env=served.env)
+    assert listed.exit_code == 0, listed.output
+    assert job in listed.stdout
+    queued = runner.invoke(app, ["jobs", "--state", "queued"], env=served.env)
+    assert job not in queued.stdout
+
+
+def test_submit_passes_the_associators_parameters(served):
+    _, job, _ = submitted(served, "--associator", "kmeans", "--param", "n_targets=3")
+    shown = runner.invoke(app, ["result", job, "--json"], env=served.env)
+    assert json.loads(shown.stdout)["n_targets"] == 3
+
+
+def test_result_writes_json_and_csv_files_as_the_server_has_them(served, tmp_path):
+    _, job, _ = submitted(served)
+    headers = {"Authorization": f"Bearer {served.key}"}
+    for option, fmt in (("--json", "json"), ("--csv", "csv")):
+        written = tmp_path / f"result.{fmt}"
+        done = runner.invoke(app, ["result", job, option, "-o", str(written)], env=served.env)
+        assert done.exit_code == 0, done.output
+        stored = httpx.get(
+            f"{served.url}/v1/jobs/{job}/result", params={"format": fmt}, headers=headers
+        )
+        if fmt == "json":
+            assert json.loads(written.read_text()) == stored.json()
+        else:
+            assert written.read_text() == stored.text
+
+
+def test_a_bad_key_is_one_clear_line_and_exit_code_1(served):
+    done = runner.invoke(app, ["jobs", "--key", "rl_00000000_nope"], env=served.env)
+    assert done.exit_code == 1
+    assert done.stderr.startswith("error: 401 Unauthorized: ")
+    assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_an_unknown_deployment_or_a_bad_parameter_says_so(served):
+    nowhere = "00000000-0000-0000-0000-000000000000"
+    done = runner.invoke(app, ["submit", str(served.csv), "--deployment", nowhere], env=served.env)
+    assert done.exit_code == 1
+    assert done.stderr.strip() == f"error: 404 Not Found: there is no deployment {nowhere}"
+    bad = runner.invoke(
+        app,
+        ["submit", str(served.csv), "--deployment", served.deployment, "--param", "nope"],
+        env=served.env,
+    )
+    assert bad.exit_code == 1
+    assert "422" in bad.stderr and "key=value" in bad.stderr
+
+
+def test_an_unreachable_server_is_one_line_too():
+    done = runner.invoke(app, ["jobs"], env={"ROADLINK_URL": f"http://127.0.0.1:{free_port()}"})
+    assert done.exit_code == 1
+    assert done.stderr.startswith("error: cannot reach http://127.0.0.1:")
