@@ -14,7 +14,7 @@ from sqlalchemy.orm import Session
 from sqlalchemy.types import NullType
 
 from roadlink.association.csvio import FEATURE_COLUMNS
-from roadlink.association.detections import Detections, feature_arrays
+from roadlink.association.detections import COLUMNS, Detections, feature_arrays
 from roadlink.association.result import AssociationResult, result_from_dict
 from roadlink.db.json_columns import BatchSelection, Selection, Sensor
 from roadlink.db.models import Batch, Deployment, Detection, Job, JobResult, JobState
@@ -22,20 +22,8 @@ from roadlink.db.models import Batch, Deployment, Detection, Job, JobResult, Job
 # Rows per INSERT executemany call: bounds the memory of one statement's parameters.
 INSERT_CHUNK = 5_000
 # The detection columns a batch insert writes (the key is the database's), in this order.
-DETECTION_INSERT_COLUMNS = (
-    "batch_id",
-    "deployment_id",
-    "row",
-    "position",
-    "velocity",
-    "timestamp",
-    "sensor_id",
-    "detection_id",
-    "target",
-    "lane",
-    "length",
-    "vehicle_class",
-)
+# A detection row: its batch, deployment and row number, then every column of `Detections`.
+DETECTION_INSERT_COLUMNS = ("batch_id", "deployment_id", "row", *COLUMNS)
 
 
 def create_deployment(session: Session, *, name: str, sensors: list[Sensor] | None) -> Deployment:
