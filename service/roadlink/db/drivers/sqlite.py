@@ -153,13 +153,12 @@ class SqliteListener:
 
     def wait(self, timeout: float) -> list[str] | None:
         rings: list[bytes] = []
-        if self._heard.is_set():
-            pass
-        elif self._doorbell is None:  # in-memory databases have no doorbell
-            self._heard.wait(timeout)
-        else:
-            # News of this process rings this socket too, so one wait covers both.
-            rings = self._doorbell.wait(timeout)
+        if not self._heard.is_set():
+            if self._doorbell is None:  # in-memory databases have no doorbell
+                self._heard.wait(timeout)
+            else:
+                # News of this process rings this socket too, so one wait covers both.
+                rings = self._doorbell.wait(timeout)
         if self._doorbell is not None:
             rings += self._doorbell.drain()
         heard = self._take()
