@@ -17,18 +17,13 @@ from tests.helpers import assert_problem
 def test_a_simulation_makes_a_labelled_batch_and_can_associate_it(
     client: TestClient, worker: Worker, deployment: dict[str, Any]
 ) -> None:
-    created = client.post(
-        "/v1/simulations",
-        json={
-            "deployment_id": deployment["id"],
-            "preset": "small",
-            "seed": 2,
-            "config": {"n_targets": 6, "miss_probability": 0.1},
-            "associate": {"associator": "kmeans++", "params": {"n_targets": 6}},
-        },
+    batch = _simulate(
+        client,
+        deployment,
+        seed=2,
+        config={"n_targets": 6, "miss_probability": 0.1},
+        params={"n_targets": 6},
     )
-    assert created.status_code == 201, created.text
-    batch = created.json()
     assert batch["source"] == "simulation"
     assert 0 < batch["n_detections"] <= 60 and batch["n_labelled"] == batch["n_detections"]
     assert worker.run_once()
@@ -39,21 +34,17 @@ def test_a_simulation_makes_a_labelled_batch_and_can_associate_it(
 def test_a_simulation_with_features_stores_them_for_its_job(
     client: TestClient, worker: Worker, deployment: dict[str, Any]
 ) -> None:
-    created = client.post(
-        "/v1/simulations",
-        json={
-            "deployment_id": deployment["id"],
-            "preset": "small",
-            "seed": 4,
-            "config": {"lanes": 2, "vehicle_lengths": True, "vehicle_classes": True},
-            "associate": {"associator": "kmeans++", "params": {"use_length": True}},
-        },
+    batch = _simulate(
+        client,
+        deployment,
+        seed=4,
+        config={"lanes": 2, "vehicle_lengths": True, "vehicle_classes": True},
+        params={"use_length": True},
     )
-    assert created.status_code == 201, created.text
     assert worker.run_once()
-    job = client.get(f"/v1/jobs/{created.json()['job']['id']}").json()
+    job = client.get(f"/v1/jobs/{batch['job']['id']}").json()
     assert job["state"] == "succeeded", job
-    result = client.get(f"/v1/jobs/{created.json()['job']['id']}/result").json()
+    result = client.get(f"/v1/jobs/{batch['job']['id']}/result").json()
     rows = [d for t in result["targets"] for d in t["detections"]]
     assert all(d["lane"] in (0, 1) and d["length"] > 0 and d["vehicle_class"] for d in rows)
 
@@ -137,3 +128,27 @@ def test_declared_sensor_names_keep_the_simulated_features() -> None:
     assert set(named.sensor_id) == {"loop-a", "loop-b"}
     assert named.lane.tolist() == simulated.lane.tolist()
     assert named.length.tolist() == simulated.length.tolist()
+
+
+def _simulate(
+    client: TestClient,
+    deployment: dict[str, Any],
+    *,
+    seed: int,
+    config: dict[str, Any],
+    params: dict[str, Any],
+) -> dict[str, Any]:
+    """A small simulated batch in the deployment, with a kmeans++ job: the created batch."""
+    created = client.post(
+        "/v1/simulations",
+        json={
+            "deployment_id": deployment["id"],
+            "preset": "small",
+            "seed": seed,
+            "config": config,
+            "associate": {"associator": "kmeans++", "params": params},
+        },
+    )
+    assert created.status_code == 201, created.text
+    batch: dict[str, Any] = created.json()
+    return batch
