@@ -89,6 +89,19 @@ def store_batches(engine: Engine, *batches: Detections) -> tuple[uuid.UUID, list
     return deployment.id, ids
 
 
+def post_csv_batch(client: Any, deployment_id: str, text: str, **params: str) -> dict[str, Any]:
+    """Post a CSV batch to the deployment (with `params` in the query, e.g. associator=...);
+    the batch as created (201), with its job in `job` when one was asked for."""
+    posted = client.post(
+        f"/v1/deployments/{deployment_id}/batches",
+        content=text,
+        headers={"content-type": "text/csv"},
+        params=params,
+    )
+    assert posted.status_code == 201, posted.text
+    return dict(posted.json())
+
+
 def assert_problem(response: Any, status: int) -> dict[str, Any]:
     """The response is problem details with this status; returns its body."""
     assert response.status_code == status, response.text

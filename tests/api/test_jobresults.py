@@ -30,7 +30,7 @@ from roadlink.db.models import Job, JobState
 from roadlink.queue.worker import WORKER_NICENESS, Worker
 from roadlink.settings import Settings
 from roadlink.simulation import preset, simulate
-from tests.helpers import assert_problem, bearer, detection_rows
+from tests.helpers import assert_problem, bearer, post_csv_batch
 
 
 @pytest.fixture(scope="module")
@@ -118,20 +118,22 @@ def test_too_large_to_view_points_to_the_whole_result() -> None:
     assert f"GET /v1/jobs/{job_id}/result" in problem.detail
 
 
-def _post_and_run(client: TestClient, worker: Worker | None, deployment: dict[str, Any]) -> str:
-    d = simulate(preset("large"), seed=5).detections
-    body = {"detections": detection_rows(d), "associate": {"associator": "kmeans"}}
-    posted = client.post(f"/v1/deployments/{deployment['id']}/batches", json=body)
-    assert posted.status_code == 201, posted.text
+def _post_and_run(
+    client: TestClient, worker: Worker | None, deployment: dict[str, Any], paper_csv: str
+) -> str:
+    """A job over the paper batch (100 detections), run when a worker is given; its id."""
+    batch = post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans")
     if worker is not None:
         assert worker.run_once()
-    return str(posted.json()["job"]["id"])
+    return str(batch["job"]["id"])
 
 
 def test_a_job_result_is_refused_when_unknown_unfinished_or_too_large(
-    client: TestClient, engine: Engine, deployment: dict[str, Any]
+    client: TestClient, engine: Engine, deployment: dict[str, Any], paper_csv: str
 ) -> None:
-    job_id = uuid.UUID(_post_and_run(client, None, deployment))  # no worker: it stays queued
+    job_id = uuid.UUID(
+        _post_and_run(client, None, deployment, paper_csv)
+    )  # no worker: it stays queued
     with make_session_factory(engine)() as session:
         with pytest.raises(ApiProblem) as unknown:
             job_result(session, JobResultCache(), uuid.uuid4(), 1000)
@@ -142,9 +144,13 @@ def test_a_job_result_is_refused_when_unknown_unfinished_or_too_large(
 
 
 def test_a_succeeded_job_result_is_read_once_and_served_from_the_cache(
-    client: TestClient, worker: Worker, engine: Engine, deployment: dict[str, Any]
+    client: TestClient,
+    worker: Worker,
+    engine: Engine,
+    deployment: dict[str, Any],
+    paper_csv: str,
 ) -> None:
-    job_id = uuid.UUID(_post_and_run(client, worker, deployment))
+    job_id = uuid.UUID(_post_and_run(client, worker, deployment, paper_csv))
     cache = JobResultCache()
     with make_session_factory(engine)() as session:
         entry = job_result(session, cache, job_id, 1000)
@@ -162,11 +168,12 @@ def test_every_view_of_a_result_past_the_limit_is_refused_before_it_is_read(
     client: TestClient,
     worker: Worker,
     deployment: dict[str, Any],
+    paper_csv: str,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """Drawing or localising a million detections took the API minutes of CPU and gigabytes; past
     ROADLINK_MAX_VIEW_DETECTIONS the views say so at once, without reading the result."""
-    job = _post_and_run(client, worker, deployment)  # 100 detections
+    job = _post_and_run(client, worker, deployment, paper_csv)  # 100 detections
 
     def never(*_args: object, **_kwargs: object) -> None:
         raise AssertionError("the result was read")

@@ -23,7 +23,7 @@ from roadlink.association.scores import wrongly_grouped
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory
 from roadlink.queue.worker import Worker
-from tests.helpers import MakeKey, assert_problem, bearer
+from tests.helpers import MakeKey, assert_problem, bearer, post_csv_batch
 
 SVG = "{http://www.w3.org/2000/svg}"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -38,23 +38,12 @@ def local(paper_csv: str) -> AssociationResult:
     return associate(read_detections_csv(paper_csv), ASSOCIATOR)
 
 
-def _post_job(client: TestClient, deployment_id: str, text: str) -> dict[str, Any]:
-    posted = client.post(
-        f"/v1/deployments/{deployment_id}/batches",
-        content=text,
-        headers={"content-type": "text/csv"},
-        params={"associator": ASSOCIATOR},
-    )
-    assert posted.status_code == 201, posted.text
-    return dict(posted.json())
-
-
 @pytest.fixture
 def done(
     client: TestClient, worker: Worker, deployment: dict[str, Any], paper_csv: str
 ) -> dict[str, Any]:
     """A succeeded job over the paper batch: its batch (with the job in `job`)."""
-    batch = _post_job(client, deployment["id"], paper_csv)
+    batch = post_csv_batch(client, deployment["id"], paper_csv, associator=ASSOCIATOR)
     assert worker.run_once()
     return batch
 
@@ -187,7 +176,7 @@ ROUTES = ("plot", "plot?format=svg", "positions?t=10", "targets/T1")
 def test_unfinished_and_unknown_jobs(
     client: TestClient, deployment: dict[str, Any], paper_csv: str
 ) -> None:
-    queued = _post_job(client, deployment["id"], paper_csv)["job"]["id"]
+    queued = post_csv_batch(client, deployment["id"], paper_csv, associator=ASSOCIATOR)["job"]["id"]
     for route in ROUTES:
         problem = assert_problem(client.get(f"/v1/jobs/{queued}/{route}"), 409)
         assert "queued" in problem["detail"] and "wait" in problem["detail"]
