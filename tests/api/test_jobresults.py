@@ -26,11 +26,11 @@ from roadlink.association import associate
 from roadlink.association.result import AssociationResult
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory
-from roadlink.db.models import Job, JobState
+from roadlink.db.models import JobState
 from roadlink.queue.worker import WORKER_NICENESS, Worker
 from roadlink.settings import Settings
 from roadlink.simulation import preset, simulate
-from tests.helpers import assert_problem, bearer, post_csv_batch
+from tests.helpers import assert_problem, bearer, post_csv_batch, unsaved_job
 
 
 @pytest.fixture(scope="module")
@@ -94,18 +94,14 @@ def test_plots_are_drawn_at_the_workers_lower_priority(local: AssociationResult)
     assert niceness == min(os.nice(0) + WORKER_NICENESS, 19)
 
 
-def _job(state: JobState, **values: Any) -> Job:
-    return Job(id=uuid.uuid4(), state=state, **values)
-
-
 def test_why_a_job_has_no_result() -> None:
-    failed = _job(JobState.FAILED, error="the associator ran out of time")
+    failed = unsaved_job(state=JobState.FAILED, error="the associator ran out of time")
     assert unfinished_detail(failed) == (
         f"job {failed.id} failed, so it has no result: the associator ran out of time"
     )
-    cancelled = _job(JobState.CANCELLED)
+    cancelled = unsaved_job(state=JobState.CANCELLED)
     assert unfinished_detail(cancelled) == f"job {cancelled.id} was cancelled, so it has no result"
-    running = _job(JobState.RUNNING, progress=0.42)
+    running = unsaved_job(state=JobState.RUNNING, progress=0.42)
     detail = unfinished_detail(running)
     assert detail.startswith(f"job {running.id} is running (42% done)") and "?wait=" in detail
 
