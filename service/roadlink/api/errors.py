@@ -22,6 +22,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from roadlink.association.detections import Problem
+from roadlink.logs import current_request_id
 from roadlink.services.problems import ProblemItem, ServiceProblem
 
 log = logging.getLogger("roadlink")
@@ -67,6 +68,11 @@ class ProblemDetail(BaseModel):
         description="For a failure of the server (5xx, or a conflict in the database): the id "
         "under which its log holds the details.",
     )
+    request_id: str | None = Field(
+        default=None,
+        description="The request's id (its X-Request-ID, or the one the server gave it): every "
+        "log line of the request carries it.",
+    )
 
 
 class ApiProblem(ServiceProblem):
@@ -102,6 +108,7 @@ def problem_response(
         instance=request.url.path,
         errors=list(errors),
         error_id=error_id,
+        request_id=current_request_id(),
     )
     return JSONResponse(
         body.model_dump(mode="json"),
@@ -144,6 +151,11 @@ PARAMETER_SOURCES = ("query", "path", "header")
 def _request_item(error: Mapping[str, Any]) -> ProblemItem:
     """A request validation error: a parameter is named by its name (no pointer), a body field
     by its path, the body as a whole by nothing."""
+    if error.get("type") == "json_invalid":  # its location is a character offset, no field
+        where = [part for part in error.get("loc", ()) if isinstance(part, int)]
+        reason = error.get("ctx", {}).get("error") or error.get("msg", "invalid")
+        at = f" at character {where[0]}" if where else ""
+        return ProblemItem(message=f"the body is not valid JSON{at}: {reason}")
     location = [part for part in error.get("loc", ()) if part != "body"]
     message = error.get("msg", "invalid")
     if location and location[0] in PARAMETER_SOURCES:
@@ -173,17 +185,29 @@ def install_error_handlers(app: FastAPI) -> None:
         return problem_response(request, exc.status_code, detail, headers=exc.headers)
 
 
+RETRY_AFTER_HEADER = {
+    "Retry-After": {
+        "description": "Seconds to wait before trying again.",
+        "schema": {"type": "integer", "minimum": 1},
+    }
+}
+
+
 def problem_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    """OpenAPI `responses` entries for error statuses, all problem details."""
-    return {
-        status: {
+    """OpenAPI `responses` entries for error statuses, all problem details (a 429 or 503 with
+    its Retry-After)."""
+    responses: dict[int | str, dict[str, Any]] = {}
+    for status in statuses:
+        response: dict[str, Any] = {
             "description": status_title(status),
             "content": {
                 PROBLEM_MEDIA_TYPE: {"schema": {"$ref": "#/components/schemas/ProblemDetail"}}
             },
         }
-        for status in statuses
-    }
+        if status in (429, 503):
+            response["headers"] = RETRY_AFTER_HEADER
+        responses[status] = response
+    return responses
 
 
 def status_title(status: int) -> str:
