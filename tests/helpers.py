@@ -98,6 +98,18 @@ def assert_problem(response: Any, status: int) -> dict[str, Any]:
     return body
 
 
+def post_csv_batch(client: Any, deployment_id: str, text: str, **params: str) -> Any:
+    """POST a CSV batch to the deployment (query `params`, e.g. associator); the 201 response."""
+    response = client.post(
+        f"/v1/deployments/{deployment_id}/batches",
+        content=text,
+        headers={"content-type": "text/csv"},
+        params=params,
+    )
+    assert response.status_code == 201, response.text
+    return response
+
+
 def bearer(key: str) -> dict[str, str]:
     return {"Authorization": f"Bearer {key}"}
 

@@ -19,6 +19,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.exc import DBAPIError, IntegrityError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from roadlink.association.detections import Problem
@@ -92,6 +93,15 @@ class ApiProblem(ServiceProblem):
         self.headers = headers
 
 
+def parameter_problem(name: str, message: str) -> ApiProblem:
+    """A 422 for one query parameter, named as a request validation error names it."""
+    return ApiProblem(
+        422,
+        f"the request is invalid: {name}: {message}",
+        errors=[ProblemItem(field=name, message=message)],
+    )
+
+
 def problem_response(
     request: Request,
     status: int,
@@ -144,6 +154,11 @@ def validation_item(
     )
 
 
+HTTP_METHODS = ("DELETE", "GET", "HEAD", "OPTIONS", "PATCH", "POST", "PUT")
+
+# What FastAPI says, as a 400, of a body it could not decode at all.
+FASTAPI_UNREADABLE_BODY = "There was an error parsing the body"
+
 # Where FastAPI found a request parameter: the first part of a validation error's location.
 PARAMETER_SOURCES = ("query", "path", "header")
 
@@ -182,7 +197,34 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         detail = exc.detail if isinstance(exc.detail, str) else HTTPStatus(exc.status_code).phrase
-        return problem_response(request, exc.status_code, detail, headers=exc.headers)
+        headers = exc.headers
+        if exc.status_code == 400 and detail == FASTAPI_UNREADABLE_BODY:
+            # FastAPI's answer to a JSON body that is not even text (not UTF-8): malformed JSON
+            # like any other, so the same documented 422 as its JSONDecodeError gets.
+            message = "the body is not valid JSON: it is not UTF-8 text"
+            return problem_response(
+                request,
+                422,
+                f"the request is invalid: body: {message}",
+                [ProblemItem(message=message)],
+            )
+        if exc.status_code == 405:
+            headers = {**(headers or {}), "Allow": ", ".join(_allowed_methods(request))}
+        return problem_response(request, exc.status_code, detail, headers=headers)
+
+
+def _allowed_methods(request: Request) -> list[str]:
+    """Every method some route of the path takes. Starlette's own 405 names those of the first
+    route that matched the path only, while FastAPI makes a route per method (GET and POST
+    /v1/deployments are two). Each method is tried on the app's routes as they match a request."""
+    return [
+        method
+        for method in HTTP_METHODS
+        if any(
+            route.matches({**request.scope, "method": method})[0] == Match.FULL
+            for route in request.app.router.routes
+        )
+    ]
 
 
 RETRY_AFTER_HEADER = {

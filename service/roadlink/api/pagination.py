@@ -21,9 +21,8 @@ from urllib.parse import urlencode
 
 from fastapi import Query, Request, Response
 
-from roadlink.api.errors import ApiProblem
+from roadlink.api.errors import parameter_problem
 from roadlink.db.listings import Keyset
-from roadlink.services.problems import ProblemItem
 
 DEFAULT_LIMIT = 100
 MAX_LIMIT = 1000
@@ -76,11 +75,8 @@ def decode_cursor(kind: str, cursor: str | None) -> Keyset | None:
             raise ValueError(created)
         return Keyset(at, uuid.UUID(hex=item_id))
     except (ValueError, TypeError, binascii.Error, UnicodeDecodeError):
-        message = f"not a cursor of this list ({kind}): pass the `next_cursor` of a page as is"
-        raise ApiProblem(
-            422,
-            f"the request is invalid: cursor: {message}",
-            errors=[ProblemItem(field="cursor", message=message)],
+        raise parameter_problem(
+            "cursor", f"not a cursor of this list ({kind}): pass the `next_cursor` of a page as is"
         ) from None
 
 

@@ -17,18 +17,11 @@ from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.association.detections import Detections
 from roadlink.cli import app as cli
 from roadlink.queue.worker import Worker
-from tests.helpers import assert_problem, detection_rows
+from tests.helpers import assert_problem, detection_rows, post_csv_batch
 
 
 def _post_csv(client: TestClient, deployment_id: str, text: str, **params: str) -> dict[str, Any]:
-    response = client.post(
-        f"/v1/deployments/{deployment_id}/batches",
-        content=text,
-        headers={"content-type": "text/csv"},
-        params=params,
-    )
-    assert response.status_code == 201, response.text
-    return dict(response.json())
+    return dict(post_csv_batch(client, deployment_id, text, **params).json())
 
 
 @pytest.mark.parametrize(
@@ -97,7 +90,7 @@ def test_status_progress_and_409_until_finished(
         100,
     )
     assert job["duration_seconds"] > 0 and job["finished_at"] >= job["started_at"]
-    assert job in client.get("/v1/jobs", params={"deployment_id": deployment["id"]}).json()
+    assert job in client.get("/v1/jobs", params={"deployment_id": deployment["id"]}).json()["items"]
 
 
 def test_wait_returns_the_result_once_the_worker_finishes(

@@ -36,7 +36,8 @@ BATCH_REQUEST_BODY: dict[str, Any] = {
     "content": {
         "application/json": {"schema": {"$ref": "#/components/schemas/BatchCreate"}},
         "text/csv": {
-            "schema": {"type": "string"},
+            # Not blank: an empty body is refused (400) before it is read.
+            "schema": {"type": "string", "pattern": "\\S"},
             "example": CSV_EXAMPLE,
         },
     },
