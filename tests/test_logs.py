@@ -116,18 +116,24 @@ def test_a_workers_lines_for_a_job_carry_the_id_of_the_request_that_made_it(
 
 @pytest.mark.slow
 def test_a_live_server_logs_json_lines_from_api_access_log_and_worker(tmp_path: Path) -> None:
-    env = sqlite_env(tmp_path, ROADLINK_LOG_FORMAT="json", ROADLINK_LOG_LEVEL="info")
+    # A long wait allowed: on a loaded machine the worker process may take a while to start.
+    env = sqlite_env(
+        tmp_path,
+        ROADLINK_LOG_FORMAT="json",
+        ROADLINK_LOG_LEVEL="info",
+        ROADLINK_MAX_WAIT_SECONDS="240",
+    )
     live = LiveServer(tmp_path, env, free_port())
     key = roadlink("keys", "create", "--scope", "admin", env=env, cwd=tmp_path).strip()
     live.start(workers=1)
     try:
         auth = {"Authorization": f"Bearer {key}"}
-        with httpx.Client(base_url=live.url, headers=auth, timeout=60) as http:
+        with httpx.Client(base_url=live.url, headers=auth, timeout=300) as http:
             deployment = http.post("/v1/deployments", json={"name": "logged"}).json()["id"]
             batch = post_csv_batch(http, deployment, CSV, associator="kmeans").json()
             job = batch["job"]["id"]
             waited = http.get(
-                f"/v1/jobs/{job}/result", params={"wait": 30}, headers={"X-Request-ID": "wait-1"}
+                f"/v1/jobs/{job}/result", params={"wait": 240}, headers={"X-Request-ID": "wait-1"}
             )
             assert waited.status_code == 200, waited.text
             created_by = batch["job"]["request_id"]
@@ -136,7 +142,7 @@ def test_a_live_server_logs_json_lines_from_api_access_log_and_worker(tmp_path: 
     lines = [json.loads(line) for line in (tmp_path / "serve.log").read_text().splitlines()]
     access = [line for line in lines if line["logger"] == "uvicorn.access"]
     (wait,) = [line for line in access if line.get("request_id") == "wait-1"]
-    assert wait["path"] == f"/v1/jobs/{job}/result?wait=30" and wait["status"] == 200
+    assert wait["path"] == f"/v1/jobs/{job}/result?wait=240" and wait["status"] == 200
     assert wait["job_id"] == job and wait["method"] == "GET"
     (post,) = [line for line in access if line.get("request_id") == created_by]
     assert post["deployment_id"] == deployment and post["status"] == 201
