@@ -105,3 +105,23 @@ LINK_HEADER = {
         "schema": {"type": "string"},
     }
 }
+
+
+def date_time_or_null(schema: dict[str, Any]) -> None:
+    """A list's time filter (jobs' `created_since`) is read as text and parsed by `aware_time`;
+    its schema says it is the date-time it must be."""
+    schema["anyOf"][0]["format"] = "date-time"
+
+
+def aware_time(field: str, text: str) -> datetime:
+    """An ISO 8601 time with its zone (not a bare number, which pydantic would read as a Unix
+    time, nor a time without a zone: the service keeps UTC)."""
+    try:
+        at = datetime.fromisoformat(text)
+    except ValueError:
+        at = None
+    if at is None or at.tzinfo is None:
+        raise parameter_problem(
+            field, f"give an ISO 8601 time with its zone, e.g. 2026-01-01T00:00:00Z, not {text!r}"
+        )
+    return at

@@ -7,7 +7,7 @@ import uuid
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from datetime import UTC, datetime
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, FastAPI, Path, Query, Request, Response
 from sqlalchemy.orm import Session, sessionmaker
@@ -15,11 +15,19 @@ from starlette.concurrency import run_in_threadpool
 
 from roadlink.api.auth import principal_of
 from roadlink.api.deps import SessionDep, SessionFactoryDep, SettingsDep
-from roadlink.api.errors import ApiProblem, parameter_problem, problem_responses
+from roadlink.api.errors import ApiProblem, problem_responses
 from roadlink.api.idempotency_header import IdempotencyDep
 from roadlink.api.jobresults import SucceededJobDep, unfinished_detail
 from roadlink.api.pagelinks import DEFAULT_LIFETIME_SECONDS, MAX_LIFETIME_SECONDS, page_token
-from roadlink.api.pagination import LINK_HEADER, CursorQuery, LimitQuery, decode_cursor, page_of
+from roadlink.api.pagination import (
+    LINK_HEADER,
+    CursorQuery,
+    LimitQuery,
+    aware_time,
+    date_time_or_null,
+    decode_cursor,
+    page_of,
+)
 from roadlink.api.resourcelinks import CREATED_HEADERS, set_location
 from roadlink.api.schemas import (
     AssociationResultRead,
@@ -65,11 +73,6 @@ MATRIX_CSV_EXAMPLE = (
     "target,S1_detection_id,S1_velocity,S1_timestamp,S2_detection_id,S2_velocity,S2_timestamp\n"
     "T1,d1,30.2,12.4,d2,30.5,15.7\n"
 )
-
-
-def _date_time_or_null(schema: dict[str, Any]) -> None:
-    # Read as text and parsed by `_aware_time`, documented as the date-time it must be.
-    schema["anyOf"][0]["format"] = "date-time"
 
 
 @router.post(
@@ -121,14 +124,14 @@ def list_jobs(
         default=None,
         description="Only jobs created at or after this time: ISO 8601 with a time zone, e.g. "
         "2026-01-01T00:00:00Z.",
-        json_schema_extra=_date_time_or_null,
+        json_schema_extra=date_time_or_null,
     ),
     limit: LimitQuery = 100,
     cursor: CursorQuery = None,
 ) -> JobPage:
     """Jobs, newest first, a page at a time (follow `next`)."""
     after = decode_cursor("jobs", cursor)
-    since = None if created_since is None else _aware_time("created_since", created_since)
+    since = None if created_since is None else aware_time("created_since", created_since)
     found = listings.list_jobs(
         session,
         deployment_id=deployment_id,
@@ -378,20 +381,6 @@ def cancel(job_id: uuid.UUID, session: SessionDep) -> JobRead:
     session.commit()
     session.expire_all()
     return JobRead.model_validate(require_job(session, job_id))
-
-
-def _aware_time(field: str, text: str) -> datetime:
-    """An ISO 8601 time with its zone (not a bare number, which pydantic would read as a Unix
-    time, nor a time without a zone: the service keeps UTC)."""
-    try:
-        at = datetime.fromisoformat(text)
-    except ValueError:
-        at = None
-    if at is None or at.tzinfo is None:
-        raise parameter_problem(
-            field, f"give an ISO 8601 time with its zone, e.g. 2026-01-01T00:00:00Z, not {text!r}"
-        )
-    return at
 
 
 def page_url(settings: Settings, job_id: uuid.UUID) -> str:
