@@ -86,7 +86,7 @@ def test_status_progress_and_409_until_finished(
         100,
     )
     assert job["duration_seconds"] > 0 and job["finished_at"] >= job["started_at"]
-    assert job in client.get("/v1/jobs", params={"deployment_id": deployment["id"]}).json()
+    assert job in client.get("/v1/jobs", params={"deployment_id": deployment["id"]}).json()["items"]
 
 
 def test_wait_returns_the_result_once_the_worker_finishes(
