@@ -129,3 +129,14 @@ def test_numbers_are_read_to_the_same_float_as_pythons(rows):
     fast = fast_detections(text.encode())
     if fast is not None:
         assert_same(fast, exact(text))
+
+
+def test_the_width_check_reads_by_chunks_of_whole_lines(monkeypatch):
+    from roadlink.association import fast_csv
+
+    monkeypatch.setattr(fast_csv, "_CHUNK_BYTES", 16)
+    text = write_detections_csv(simulate(preset("small"), seed=5).detections)
+    assert_same(fast_detections(text.encode()), exact(text))
+    lines = text.splitlines(keepends=True)
+    short = "".join([*lines[:40], "0,20\n", *lines[40:]])
+    assert fast_detections(short.encode()) is None

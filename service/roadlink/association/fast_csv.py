@@ -105,7 +105,23 @@ def _plain_body(data: bytes, width: int) -> bool:
         return False
     if b"\r" in data and data.count(b"\r") != data.count(b"\r\n"):
         return False
-    buffer = np.frombuffer(data, dtype=np.uint8)
+    start = 0
+    while start < len(data):  # by chunks of whole lines: the check's memory stays small
+        end = data.rfind(b"\n", start, start + _CHUNK_BYTES) + 1
+        end = len(data) if end <= start or len(data) - start <= _CHUNK_BYTES else end
+        if not _lines_as_wide(data[start:end], width):
+            return False
+        start = end
+    return True
+
+
+_CHUNK_BYTES = 1 << 22
+
+
+def _lines_as_wide(chunk: bytes, width: int) -> bool:
+    """Whether every line of `chunk` (whole lines; the last may lack its newline) has
+    `width - 1` commas."""
+    buffer = np.frombuffer(chunk, dtype=np.uint8)
     ends = np.flatnonzero(buffer == ord("\n"))
     if ends.size == 0 or ends[-1] != buffer.size - 1:
         ends = np.append(ends, buffer.size)  # the last line may end without a newline
