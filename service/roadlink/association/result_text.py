@@ -170,7 +170,7 @@ def matrix_csv(
     assigned = np.flatnonzero(result.groups >= 0)
     cell = result.groups[assigned] * n_sensors + sensor[assigned]
     plain = not any(_NEEDS_QUOTES.search("".join(values)) for values in columns.values())
-    if np.unique(cell).size != cell.size or not plain:
+    if (cell.size and np.bincount(cell).max() > 1) or not plain:
         write_rows(writer)
         return out.getvalue()
     # Targets are numbered in `target_members` order: the k-th distinct group is row k.
