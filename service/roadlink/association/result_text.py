@@ -20,7 +20,7 @@ import json
 import math
 import re
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 import orjson
@@ -32,7 +32,15 @@ if TYPE_CHECKING:
 
 
 def result_json_text(result: AssociationResult) -> str:
-    """`json.dumps(result.to_dict(), indent=2) + "\\n"`, written by orjson where the two agree.
+    """`json.dumps(result.to_dict(), indent=2) + "\\n"`: what `write_result_json` writes."""
+    out = io.BytesIO()
+    write_result_json(result, out)
+    return out.getvalue().decode()
+
+
+def write_result_json(result: AssociationResult, stream: BinaryIO) -> None:
+    """Write `json.dumps(result.to_dict(), indent=2) + "\\n"` to `stream`, as UTF-8 (ASCII: the
+    plain encoder escapes the rest), by orjson where the two agree, without a copy of the text.
 
     Whether they agree is checked on the result's arrays (the detection rows, a million of
     them, hold only its columns' values) and on the few values beside them (targets' summaries,
@@ -41,7 +49,8 @@ def result_json_text(result: AssociationResult) -> str:
     """
     document = result.to_dict()
     if not _columns_agree(result):
-        return json.dumps(document, indent=2) + "\n"
+        stream.write((json.dumps(document, indent=2) + "\n").encode())
+        return
     for name in ("params", "effective_params", "metrics"):
         if name in document:
             document[name] = _respelt(document[name])
@@ -50,9 +59,11 @@ def result_json_text(result: AssociationResult) -> str:
             if key != "detections":
                 target[key] = _respelt(value)
     if any(v is _DISAGREES for v in _walk(document, skip=("detections", "unassigned"))):
-        return json.dumps(result.to_dict(), indent=2) + "\n"
+        stream.write((json.dumps(result.to_dict(), indent=2) + "\n").encode())
+        return
     _respell_small_row_floats(result, document)
-    return orjson.dumps(document, option=orjson.OPT_INDENT_2).decode() + "\n"
+    stream.write(orjson.dumps(document, option=orjson.OPT_INDENT_2))
+    stream.write(b"\n")
 
 
 _DISAGREES = object()

@@ -18,7 +18,7 @@ from roadlink.association import (
 )
 from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR, AssociationError
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
-from roadlink.association.result_text import result_json_text
+from roadlink.association.result_text import write_result_json
 from roadlink.cli import app
 from roadlink.plots import PLOT_FORMATS, PLOT_KINDS, render_plot
 from roadlink.simulation import PRESETS, preset, simulate
@@ -192,7 +192,10 @@ def associate_command(
             raise fail(f"cannot write {plot}: {exc.strerror}") from None
         typer.echo(f"wrote {plot_kind} plot to {plot}", err=True)
     if as_json:
-        sys.stdout.write(result_json_text(result))
+        # Bytes, straight to the stream: the text of 10^6 detections is hundreds of MiB.
+        sys.stdout.flush()
+        write_result_json(result, sys.stdout.buffer)
+        sys.stdout.buffer.flush()
     elif as_csv:
         sys.stdout.write(result.to_matrix_csv())
     else:
