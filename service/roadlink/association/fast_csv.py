@@ -17,14 +17,16 @@ values, out-of-range ones and every other check that fails go to the exact reade
 from __future__ import annotations
 
 import csv
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import polars as pl
 
 from roadlink.association.columns import MAX_ABS_VALUE, Problem
 from roadlink.association.detections import Detections
 from roadlink.association.feature_columns import class_column, lane_column, length_column
+
+if TYPE_CHECKING:
+    import polars as pl
 
 NUMBER_COLUMNS = ("position", "velocity", "timestamp")
 TEXT_COLUMNS = ("sensor_id", "detection_id", "target")
@@ -43,6 +45,9 @@ def fast_detections(data: bytes, max_rows: int | None = None) -> Detections | No
     names = _plain_header(data)
     if names is None or not _plain_body(data, len(names)):
         return None
+    # Imported here, on the first CSV: every process imports the core, few read CSV.
+    import polars as pl
+
     schema = {name: (pl.Float64 if name in NUMBER_COLUMNS else pl.String) for name in names}
     try:
         frame = pl.read_csv(
@@ -152,6 +157,8 @@ def _sensor_ids(frame: pl.DataFrame, position: Any) -> Any:
     column = frame["sensor_id"]
     if column.null_count():
         return None
+    import polars as pl
+
     spread = frame.group_by("sensor_id").agg(
         low=pl.col("position").min(), high=pl.col("position").max()
     )
