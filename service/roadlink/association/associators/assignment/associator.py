@@ -6,6 +6,10 @@ from typing import ClassVar
 
 import numpy as np
 
+from roadlink.association.associators.assignment.anchors import (
+    lane_order_anchors,
+    weigh_anchors,
+)
 from roadlink.association.associators.assignment.confidence import (
     cut_weak_links,
     link_confidence,
@@ -51,15 +55,23 @@ class AssignmentAssociator(Associator):
         passes = rounds + params.refine_sweeps
         model = prior
         track = np.zeros(0, dtype=np.int64)
+        anchor = None
         for r in range(rounds):
-            track = build_tracks(s, model, params, leader, progress, r / passes, 1.0 / passes)
+            track = build_tracks(
+                s, model, params, leader, progress, r / passes, 1.0 / passes, anchor
+            )
             if r + 1 < rounds:
                 model = learn_segments(s, track, params, prior)
+                if anchor is None and params.lane_anchors:
+                    # Lane order needs the length error, learned from the first tracks.
+                    anchor = weigh_anchors(s, lane_order_anchors(s, model.features), track)
         # The last re-pairing sweep judges the links it keeps (docs/assignment.md, Confidence).
         confidence = np.full(track.size, np.nan)
         for sweep in range(params.refine_sweeps):
             last = sweep + 1 == params.refine_sweeps
-            track = refine_boundaries(s, model, params, track, confidence if last else None)
+            track = refine_boundaries(
+                s, model, params, track, confidence if last else None, anchor=anchor
+            )
             if progress:
                 progress((rounds + sweep + 1) / passes)
         if params.refine_sweeps == 0:

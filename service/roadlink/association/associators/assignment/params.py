@@ -145,6 +145,14 @@ class AssignmentParams(AssociatorParams):
         "report them: each adds the log likelihood ratio of 'same vehicle' against 'another "
         "vehicle at that sensor', learned from the data. 0 ignores them.",
     )
+    lane_anchors: bool = Field(
+        default=True,
+        description="Where detections report lane and length: favour the links that lane order "
+        "makes sure of (each lane's detections at two neighbouring sensors aligned in time "
+        "order: no vehicle passes another in its lane, and followers take about the same "
+        "time), in each segment as much as the tracks built without them contradict them. "
+        "Decisive in queues; false: speeds, times and features alone.",
+    )
     preferred_speed_weight: float = Field(
         default=0.35,
         ge=0,

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.gating import Pairs, gated_pairs
 from roadlink.association.associators.assignment.matching import chosen_marginals, match
@@ -31,6 +32,7 @@ def refine_boundaries(
     track: IntArray,
     confidence: FloatArray | None = None,
     relink: bool = True,
+    anchor: Anchors | None = None,
 ) -> IntArray:
     """Re-pair the tracks across every sensor boundary, seeing both sides whole.
 
@@ -45,6 +47,7 @@ def refine_boundaries(
     keeps, how sure it is against its rivals at the boundary (`matching.chosen_marginals`, every
     piece free to stay alone at half of `gate_cost`): a link is decided, and judged, for the
     last time at the boundary before its far end. `relink=False` judges the links as they are.
+    Links that lane order `anchor`s cost their bonus less, as in the forward pass.
     """
     nxt, prv = successors(s, track)
     in_track = track >= 0
@@ -63,7 +66,7 @@ def refine_boundaries(
         if ends is None:
             continue
         tails, pairs = ends
-        cost = boundary_cost(params, model, pairs, levels, s)
+        cost = boundary_cost(params, model, pairs, levels, s) - anchor_bonus(pairs, anchor)
         if relink:
             # Splitting a track costs more here than declining a link did: a track the forward
             # pass built is evidence in itself, so re-pairing must pay for itself.

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.gating import gated_pairs
 from roadlink.association.associators.assignment.matching import match
@@ -112,8 +113,10 @@ def build_tracks(
     progress: Progress | None,
     done: float,
     share: float,
+    anchor: Anchors | None = None,
 ) -> IntArray:
-    """One sequential pass over the sensors: the track index of every detection (-1 = none)."""
+    """One sequential pass over the sensors: the track index of every detection (-1 = none).
+    Links that lane order `anchor`s (`anchors.py`) cost their bonus less."""
     n_sensors = s.positions.size
     track = np.full(s.time.size, -1, dtype=np.int64)
     level = TrackLevel.start(s)
@@ -121,7 +124,7 @@ def build_tracks(
     for q in range(n_sensors):
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
-            linked_b = _extend_tracks(s, model, params, q, track, tail, level)
+            linked_b = _extend_tracks(s, model, params, q, track, tail, level, anchor)
         born = _births(s.members(q), linked_b, track, leader)
         track[born] = tail.size + np.arange(born.size)
         tail = np.concatenate([tail, born])
@@ -138,6 +141,7 @@ def _extend_tracks(
     track: IntArray,
     tail: IntArray,
     level: TrackLevel,
+    anchor: Anchors | None,
 ) -> IntArray:
     """Link the open tracks (those whose last detection lies within `max_skip` missed sensors)
     to sensor q's detections, one to one at least cost; the detections linked."""
@@ -147,6 +151,7 @@ def _extend_tracks(
         return np.zeros(0, dtype=np.int64)
     a, b = pairs.a, pairs.b
     cost = link_cost(params, model, pairs, level.of(a), detection_level(s, b), s)
+    cost -= anchor_bonus(pairs, anchor)
     linked_a, linked_b = match(a, b, cost, params.gate_cost)
     level.extend(s, linked_a, linked_b)
     track[linked_b] = track[linked_a]
