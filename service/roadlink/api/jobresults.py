@@ -16,7 +16,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from functools import cached_property
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
@@ -53,6 +53,16 @@ class CachedResult:
     def trajectories(self) -> list[Trajectory]:
         """Every target's trajectory, in target order (T1 first)."""
         return target_trajectories(self.result)
+
+    @cached_property
+    def vehicle_features(self) -> list[dict[str, Any]]:
+        """Every target's `length` and `vehicle_class` as the result gives them, in target
+        order; empty dicts when the detections report neither."""
+        features = self.result.detections.features
+        return [
+            self.result.target_features(members, features)
+            for members in self.result.target_members()
+        ]
 
     def plot(self, kind: str, fmt: str) -> bytes:
         """The plot of the result (see `roadlink.plots.render_plot`), rendered once per kind and

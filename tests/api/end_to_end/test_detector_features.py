@@ -97,6 +97,20 @@ def test_features_posted_come_back_in_the_result_as_the_cli_gives_them(
     assert all({"length", "vehicle_class"} <= t.keys() for t in document["targets"])
     header = next(csv.reader(io.StringIO(matrix)))
     assert {"S1_lane", "S1_length", "S1_vehicle_class", "S10_lane"} <= set(header)
+    # Localisation carries each vehicle's length and class as the result's targets give them.
+    first = document["targets"][0]
+    target = client.get(f"/v1/jobs/{batch['job']['id']}/targets/T1").json()
+    assert (target["length"], target["vehicle_class"]) == (
+        first["length"],
+        first["vehicle_class"],
+    )
+    at = first["detections"][0]["timestamp"]
+    positions = client.get(f"/v1/jobs/{batch['job']['id']}/positions", params={"t": at}).json()
+    by_name = {t["target"]: t for t in document["targets"]}
+    assert positions["targets"]
+    for p in positions["targets"]:
+        assert p["length"] == by_name[p["target"]]["length"]
+        assert p["vehicle_class"] == by_name[p["target"]]["vehicle_class"]
 
     # The CLI on the same detections prints the same document and matrix.
     path = tmp_path / "featured.csv"
@@ -118,6 +132,12 @@ def test_without_features_the_result_is_what_it_always_was(
         "link_confidence"
     }
     assert {k for t in document["targets"] for k in t} == {"target", "confidence", "detections"}
+    job = batch["job"]["id"]
+    at = document["targets"][0]["detections"][0]["timestamp"]
+    positions = client.get(f"/v1/jobs/{job}/positions", params={"t": at}).json()
+    assert {k for p in positions["targets"] for k in p} == {"target", "position", "velocity"}
+    target = client.get(f"/v1/jobs/{job}/targets/T1").json()
+    assert not {"length", "vehicle_class"} & target.keys()
     assert not [h for h in matrix.splitlines()[0].split(",") if h.endswith(FEATURES)]
     expected = associate(paper_batch, "assignment")
     assert document == json.loads(json.dumps(expected.to_dict()))

@@ -259,6 +259,8 @@ def get_plot(
     "/{job_id}/positions",
     name="get_positions",
     response_model=PositionsRead,
+    # A vehicle's length and class appear only where the detections report them.
+    response_model_exclude_unset=True,
     responses=problem_responses(404, 409, 413, 422),
     summary="Where every target is at a time",
 )
@@ -270,12 +272,18 @@ def get_positions(
 ) -> PositionsRead:
     """Every target on the observed road at time t (between its first and last sensor pass),
     with its position and velocity estimated by cubic Hermite interpolation through its passes.
-    Targets before their first or after their last pass are not listed. 409 while the job is
-    unfinished."""
+    Targets before their first or after their last pass are not listed; where detections
+    report them, each target's length and class. 409 while the job is unfinished."""
+    n_targets = len(job.trajectories)
     return PositionsRead(
         time=t,
         targets=[
-            TargetPositionRead(target=p.target, position=p.position, velocity=p.velocity)
+            TargetPositionRead(
+                target=p.target,
+                position=p.position,
+                velocity=p.velocity,
+                **job.vehicle_features[target_index(p.target, n_targets)],
+            )
             for p in positions_at(job.trajectories, t)
         ],
     )
@@ -285,6 +293,8 @@ def get_positions(
     "/{job_id}/targets/{target}",
     name="get_target",
     response_model=TargetTrajectoryRead,
+    # A vehicle's length and class appear only where the detections report them.
+    response_model_exclude_unset=True,
     responses=problem_responses(404, 409, 413, 422),
     summary="One target's trajectory, travel times and mean speeds",
 )
@@ -305,16 +315,19 @@ def get_target(
     and its track (position and velocity by cubic Hermite interpolation) sampled from its first
     to its last pass. 404 for a target the result does not have."""
     try:
-        trajectory = job.trajectories[target_index(target, len(job.trajectories))]
+        index = target_index(target, len(job.trajectories))
     except KeyError as exc:
         raise ApiProblem(404, f"job {job.job_id} has no target: {exc.args[0]}") from None
+    trajectory = job.trajectories[index]
     try:
         sampled = sample_trajectory(trajectory, step=step)
     except ValueError as exc:
         raise ApiProblem(
             422, str(exc), errors=[ProblemItem(field="step", message=str(exc))]
         ) from None
-    return TargetTrajectoryRead.model_validate(published_trajectory(sampled))
+    return TargetTrajectoryRead.model_validate(
+        {**published_trajectory(sampled), **job.vehicle_features[index]}
+    )
 
 
 @router.post(

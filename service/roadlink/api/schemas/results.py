@@ -172,7 +172,24 @@ class AssociationResultRead(BaseModel):
     metrics: MetricsRead | None = Field(description="Null when no detection is labelled.")
 
 
-class TargetPositionRead(BaseModel):
+class VehicleFeaturesRead(BaseModel):
+    """What a target's detections say of the vehicle, as the result's target gives it."""
+
+    length: float | None = Field(
+        default=None,
+        gt=0,
+        description="The median of its detections' measured lengths. Present only when some "
+        "detection of the job reported a length; null when none of this target's did.",
+    )
+    vehicle_class: str | None = Field(
+        default=None,
+        max_length=32,
+        description="The class its detections report most often. Present only when some "
+        "detection of the job reported a class; null when none of this target's did.",
+    )
+
+
+class TargetPositionRead(VehicleFeaturesRead):
     target: str = Field(description="The target, named as in the result (T1, T2, ...).")
     position: float = Field(description="Estimated position along the road.")
     velocity: float = Field(description="Estimated velocity.")
@@ -234,9 +251,10 @@ class TrackPointRead(BaseModel):
     velocity: float
 
 
-class TargetTrajectoryRead(BaseModel):
+class TargetTrajectoryRead(VehicleFeaturesRead):
     """One target's passes, its travel times and mean speeds between sensors, and its track
-    sampled from its first to its last pass."""
+    sampled from its first to its last pass; where detectors report them, the vehicle's length
+    and class."""
 
     model_config = ConfigDict(
         json_schema_extra={
