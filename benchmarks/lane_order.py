@@ -1,4 +1,4 @@
-"""Lane order in queues: `assignment` with and without its lane-order anchors, beside a ceiling.
+"""Lane order in queues: `assignment` with and without its lane-order anchors, and lane order alone.
 
 A vehicle that keeps its lane between two sensors cannot pass another that keeps it too: lane by
 lane, a queue is first in, first out. On the SUMO queue cases this holds for 94-100 % of the
@@ -9,13 +9,13 @@ share of true links each method makes, and the accuracy of its grouping:
 
 - `assignment, no lane anchors`: the associator with `lane_anchors` off.
 - `assignment`: the associator at its defaults (lane anchors on).
-- `lane order, true curves`: a ceiling for the idea. Each lane's upstream and downstream
-  detections are aligned in time order (a monotone alignment: any detection may stay unpaired,
-  a lane changer or a vehicle outside the time window), each pair scored by the log-likelihood
-  ratio of its travel time against that lane's *true* travel-time curve (a running median over
-  the true links of the vehicles that kept the lane) and of its two lengths; the detections
-  left over are matched by one assignment against the whole segment's curve. No method without
-  labels knows those curves.
+- `lane order, true curves`: lane order alone, given what no method without labels knows. Each
+  lane's upstream and downstream detections are aligned in time order (a monotone alignment:
+  any detection may stay unpaired, a lane changer or a vehicle outside the time window), each
+  pair scored by the log-likelihood ratio of its travel time against that lane's *true*
+  travel-time curve (a running median over the true links of the vehicles that kept the lane)
+  and of its two lengths; the detections left over are matched by one assignment against the
+  whole segment's curve. Speeds are not used.
 
     python benchmarks/lane_order.py --data /work/sumo-data-features --seeds 5
 

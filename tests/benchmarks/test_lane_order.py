@@ -31,10 +31,10 @@ def test_lane_order_against_true_curves_recovers_a_lane_keeping_queue() -> None:
     sensor = np.searchsorted(np.unique(d.position), d.position)
     labels = np.unique(d.target.astype(str), return_inverse=True)[1]
     truth = successors_of(labels, sensor)
-    ceiling = segment_link_accuracy(lane_order_successors(d, sensor, truth), truth, sensor)
+    given_curves = segment_link_accuracy(lane_order_successors(d, sensor, truth), truth, sensor)
     # Travel times of 40-80 s are 10-25 headways long, yet keeping each lane's order with the
     # true curves recovers nearly every link.
-    assert min(ceiling) >= 0.95
+    assert min(given_curves) >= 0.95
 
 
 def test_measure_reports_every_method_and_refuses_cases_without_lanes() -> None:
