@@ -73,7 +73,12 @@ def weigh_anchors(s: Sensors, predecessor: IntArray, track: IntArray) -> Anchors
     free flow the two agree on nearly every link, and where they do not, it is as often the
     lane order that is wrong (a lane changer); in a queue they disagree on a third or more,
     and there the tracks are what is lost. The bonus grows with the share of disagreement, to
-    ANCHOR_BONUS at FULL_DISAGREEMENT."""
+    ANCHOR_BONUS at FULL_DISAGREEMENT.
+
+    Lanes must be the road's lanes, numbered alike at every sensor: where they are labels that
+    keep no order (the paper's simulation with `--lanes`), the anchors are mostly wrong, the
+    tracks contradict them everywhere, and only the speeds and times overrule them (docs/
+    assignment.md measures what that costs)."""
     bonus = np.zeros(predecessor.size)
     anchored = np.flatnonzero(predecessor >= 0)
     if not anchored.size:
@@ -189,19 +194,24 @@ def smooth_chain(
         jump = best_before[i, :m] - JUMP
         better = jump > row
         row[better], origin[better] = jump[better], where_before[i, :m][better]
-        for di in range(1, min(BAND, i) + 1):
-            for dj in range(1, min(BAND, m - 1) + 1):
-                change = np.fmin(
-                    np.abs(log_travel[i, dj:] - log_travel[i - di, :-dj]),
-                    np.abs(kinematic[i, dj:] - kinematic[i - di, :-dj]),
-                )
-                step = score[i - di, :-dj] - 0.5 * (change / SMOOTH_SPREAD) ** 2
-                step -= SKIP * (di + dj - 2)
-                step = np.where(np.isfinite(step), step, -np.inf)
-                improved = np.flatnonzero(step > row[dj:])  # column j - dj of the pair before
-                row[dj + improved] = step[improved]
-                origin[dj + improved, 0] = i - di
-                origin[dj + improved, 1] = improved
+        # The BAND rows before, nearest first, all at once; one column shift at a time.
+        before = slice(i - 1, max(i - BAND, 0) - 1 if i > BAND else None, -1)
+        back_rows = np.arange(i - 1, max(i - BAND, 0) - 1, -1)
+        skipped_rows = np.arange(back_rows.size)[:, None]  # rows skipped between the two pairs
+        for dj in range(1, min(BAND, m - 1) + 1) if i else ():
+            change = np.fmin(
+                np.abs(log_travel[i, dj:] - log_travel[before, :-dj]),
+                np.abs(kinematic[i, dj:] - kinematic[before, :-dj]),
+            )
+            step = score[before, :-dj] - 0.5 * (change / SMOOTH_SPREAD) ** 2
+            step -= SKIP * (skipped_rows + dj - 1)
+            step = np.where(np.isfinite(step), step, -np.inf)
+            nearest = np.argmax(step, axis=0)
+            best = step[nearest, np.arange(step.shape[1])]
+            improved = np.flatnonzero(best > row[dj:])  # column j - dj of the pair before
+            row[dj + improved] = best[improved]
+            origin[dj + improved, 0] = back_rows[nearest[improved]]
+            origin[dj + improved, 1] = improved
         score[i] = row + gain[i]
         back[i] = origin
         best_before[i + 1], where_before[i + 1] = _best_so_far(
