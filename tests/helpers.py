@@ -121,3 +121,16 @@ def in_hours(d: Detections) -> Detections:
         d.detection_id,
         d.target,
     )
+
+
+def post_csv(client: Any, deployment_id: str, text: str, **params: str) -> dict[str, Any]:
+    """POST a CSV batch through the in-process API (query `params`, e.g. associator=); the 201
+    answer's JSON."""
+    response = client.post(
+        f"/v1/deployments/{deployment_id}/batches",
+        content=text,
+        headers={"content-type": "text/csv"},
+        params=params,
+    )
+    assert response.status_code == 201, response.text
+    return dict(response.json())

@@ -28,6 +28,12 @@ from roadlink.api.schemas.results import (
     TargetTrajectoryRead,
     TrackPointRead,
 )
+from roadlink.api.schemas.webhooks import (
+    DeliveryRead,
+    WebhookCreate,
+    WebhookCreated,
+    WebhookRead,
+)
 
 __all__ = [
     "EXAMPLE_ID",
@@ -36,6 +42,7 @@ __all__ = [
     "AssociatorRead",
     "BatchCreate",
     "BatchRead",
+    "DeliveryRead",
     "DeploymentCreate",
     "DeploymentRead",
     "DetectionIn",
@@ -56,5 +63,8 @@ __all__ = [
     "TargetRead",
     "TargetTrajectoryRead",
     "TrackPointRead",
+    "WebhookCreate",
+    "WebhookCreated",
+    "WebhookRead",
     "batch_read",
 ]
