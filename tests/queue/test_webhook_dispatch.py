@@ -7,21 +7,26 @@ from __future__ import annotations
 import json
 import re
 import threading
+import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
+from roadlink.association.csvio import write_detections_csv
 from roadlink.db.engine import make_session_factory
 from roadlink.queue.webhook_dispatch import WebhookDispatcher
 from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
+from roadlink.simulation import preset, simulate
 from tests.helpers import post_csv
+from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "service.md"
 
@@ -46,13 +51,16 @@ class Receiver:
     def __init__(self, script: list[int]) -> None:
         self.script = list(script)
         self.received: list[tuple[dict[str, str], bytes]] = []
+        self.arrived = threading.Condition()
         receiver = self
 
         class Handler(BaseHTTPRequestHandler):
             def do_POST(self) -> None:
                 body = self.rfile.read(int(self.headers["Content-Length"]))
-                receiver.received.append((dict(self.headers.items()), body))
-                status = receiver.script.pop(0) if receiver.script else 200
+                with receiver.arrived:
+                    receiver.received.append((dict(self.headers.items()), body))
+                    status = receiver.script.pop(0) if receiver.script else 200
+                    receiver.arrived.notify_all()
                 self.send_response(status)
                 self.send_header("Content-Length", "2")
                 self.end_headers()
@@ -65,6 +73,14 @@ class Receiver:
         self.url = f"http://127.0.0.1:{self.server.server_address[1]}/hook"
         self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
         self.thread.start()
+
+    def wait_for(self, count: int, timeout: float) -> list[tuple[dict[str, str], bytes]]:
+        """The requests received, once there are `count` (fails after `timeout` seconds)."""
+        with self.arrived:
+            assert self.arrived.wait_for(lambda: len(self.received) >= count, timeout), (
+                f"{len(self.received)} of {count} deliveries arrived"
+            )
+            return list(self.received)
 
     def close(self) -> None:
         self.server.shutdown()
@@ -244,3 +260,44 @@ def test_a_delivery_fails_after_its_attempts_and_a_dead_receiver_is_an_error(
 
 def _parse(value: str) -> datetime:
     return datetime.fromisoformat(value.replace("Z", "+00:00"))
+
+
+def test_the_workers_of_roadlink_serve_send_the_event_and_retry(tmp_path: Path) -> None:
+    """End to end: `roadlink serve --workers 1`; the API only writes the outbox, the worker
+    process sends, and after a failed attempt (0.05 s backoff) sends again."""
+    receiver = Receiver([500])
+    env = sqlite_env(tmp_path, ROADLINK_WEBHOOK_BACKOFF_SECONDS="0.05")
+    server = LiveServer(tmp_path, env, free_port())
+    key = roadlink("keys", "create", "--scope", "admin", env=env, cwd=tmp_path).strip()
+    server.start(workers=1)
+    try:
+        api = httpx.Client(
+            base_url=server.url, headers={"Authorization": f"Bearer {key}"}, timeout=60
+        )
+        road = api.post("/v1/deployments", json={"name": "live"}).json()["id"]
+        hook = api.post(f"/v1/deployments/{road}/webhooks", json={"url": receiver.url}).json()
+        csv = write_detections_csv(simulate(preset("large"), seed=1).detections)
+        batch = api.post(
+            f"/v1/deployments/{road}/batches",
+            params={"associator": "kmeans++"},
+            content=csv,
+            headers={"content-type": "text/csv"},
+        ).json()
+        first, second = receiver.wait_for(2, timeout=60)
+        event = json.loads(second[1])
+        assert event["data"]["job"]["id"] == batch["job"]["id"]
+        assert first[1] == second[1] and second[0]["Roadlink-Delivery-Attempt"] == "2"
+        verify = documented_verifier()
+        assert verify(hook["secret"], second[0]["Roadlink-Signature"], second[1])
+        # The worker records the answer after the receiver sent it: poll the log for it.
+        deadline = time.monotonic() + 30
+        while True:
+            [log] = api.get(f"/v1/deployments/{road}/webhooks/{hook['id']}/deliveries").json()
+            if log["state"] != "pending" or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        assert (log["state"], log["attempts"], log["last_status_code"]) == ("delivered", 2, 200)
+        api.close()
+    finally:
+        server.stop()
+        receiver.close()
