@@ -15,7 +15,7 @@ from sqlalchemy import Engine, update
 from roadlink.db import lifecycle
 from roadlink.db.engine import make_session_factory, transaction
 from roadlink.db.models import Batch, Job, WebhookDelivery, utcnow
-from roadlink.queue import housekeeping
+from roadlink.queue import housekeeping, retention
 from roadlink.queue.housekeeping import Housekeeping
 from roadlink.queue.retention import delete_expired
 from roadlink.queue.worker import Worker
@@ -32,6 +32,7 @@ def test_retention_deletes_what_is_older_than_the_period(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(lifecycle, "CHUNK", 7)  # several chunks per batch of 100 detections
+    monkeypatch.setattr(retention, "BATCHES_PER_ROUND", 1)  # rounds of held batches only too
     assert (
         client.post(
             f"/v1/deployments/{deployment['id']}/webhooks", json={"url": "http://127.0.0.1:9/"}
@@ -42,7 +43,10 @@ def test_retention_deletes_what_is_older_than_the_period(
     new = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
     while worker.run_once():
         pass
-    held = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")  # stays queued
+    # Two more batches, each read by its queued job (with the one batch a round, retention
+    # must look past rounds of held batches to find the deletable one, whatever their order).
+    held = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
+    post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
     sessions = make_session_factory(engine)
     now = utcnow()
     with transaction(sessions) as session:
@@ -68,7 +72,7 @@ def test_retention_deletes_what_is_older_than_the_period(
     assert (expired.jobs, expired.batches, expired.deliveries) == (1, 1, 2)
     assert expired.detections == old["n_detections"]
     after = row_counts(engine)
-    assert after["batch"] == 2 and after["job"] == 2 and after["job_result"] == 1
+    assert after["batch"] == 3 and after["job"] == 3 and after["job_result"] == 1
     assert after["detection"] == before["detection"] - old["n_detections"]
     assert client.get(f"/v1/batches/{old['id']}").status_code == 404
     assert client.get(f"/v1/jobs/{old['job']['id']}").status_code == 404
@@ -78,7 +82,7 @@ def test_retention_deletes_what_is_older_than_the_period(
     while worker.run_once():
         pass
     later = delete_expired(sessions, days=30, now=now)
-    assert (later.jobs, later.batches) == (0, 1)
+    assert (later.jobs, later.batches) == (0, 2)
     assert delete_expired(sessions, days=30, now=now) == later.__class__(0, 0, 0, 0)
 
 

@@ -87,5 +87,10 @@ def _delete_in_chunks(sessions: sessionmaker[Session], model: type, ids_query: o
 
 def old_batches(session: Session, cutoff: datetime, limit: int) -> list[Batch]:
     """Up to `limit` batches stored before `cutoff`, oldest first."""
-    query = select(Batch).where(Batch.created_at < cutoff).order_by(Batch.created_at).limit(limit)
+    query = (
+        select(Batch)
+        .where(Batch.created_at < cutoff)
+        .order_by(Batch.created_at, Batch.id)
+        .limit(limit)
+    )
     return list(session.scalars(query).all())

@@ -51,13 +51,18 @@ def delete_expired(
         with transaction(sessions) as session:
             active = active_jobs_anywhere(session)
             candidates = old_batches(session, cutoff, BATCHES_PER_ROUND + len(kept))
-            doomed = []
+            doomed, newly_kept = [], 0
             for batch in candidates:
-                if batch.id in kept or any(reads_batch(job, batch) for job in active):
+                if batch.id in kept:
+                    continue
+                if any(reads_batch(job, batch) for job in active):
                     kept.add(batch.id)
+                    newly_kept += 1
                 else:
                     doomed.append(batch.id)
         if not doomed:
+            if newly_kept:  # a round of held batches only: look past them
+                continue
             break
         detections += delete_detections(sessions, doomed)
         with transaction(sessions) as session:
