@@ -20,7 +20,7 @@ from roadlink.queue.housekeeping import Housekeeping
 from roadlink.queue.retention import delete_expired
 from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
-from tests.helpers import post_csv, row_counts
+from tests.helpers import post_csv_batch, row_counts
 
 
 def test_retention_deletes_what_is_older_than_the_period(
@@ -39,14 +39,14 @@ def test_retention_deletes_what_is_older_than_the_period(
         ).status_code
         == 201
     )
-    old = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
-    new = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
+    old = post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans++")
+    new = post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans++")
     while worker.run_once():
         pass
     # Two more batches, each read by its queued job (with the one batch a round, retention
     # must look past rounds of held batches to find the deletable one, whatever their order).
-    held = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
-    post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
+    held = post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans++")
+    post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans++")
     sessions = make_session_factory(engine)
     now = utcnow()
     with transaction(sessions) as session:

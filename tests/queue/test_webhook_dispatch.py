@@ -25,7 +25,7 @@ from roadlink.queue.webhook_dispatch import WebhookDispatcher
 from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
 from roadlink.simulation import preset, simulate
-from tests.helpers import post_csv
+from tests.helpers import post_csv_batch
 from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "service.md"
@@ -118,7 +118,7 @@ def dispatcher_at(
 def deliveries(client: TestClient, deployment_id: str, webhook_id: str) -> list[dict[str, Any]]:
     response = client.get(f"/v1/deployments/{deployment_id}/webhooks/{webhook_id}/deliveries")
     assert response.status_code == 200, response.text
-    return list(response.json())
+    return list(response.json()["items"])
 
 
 def test_a_finished_job_is_delivered_signed_with_backoff_logged_and_redelivered(
@@ -136,10 +136,10 @@ def test_a_finished_job_is_delivered_signed_with_backoff_logged_and_redelivered(
     assert created.status_code == 201, created.text
     hook = created.json()
     assert hook["secret"].startswith("whsec_") and hook["event_types"] == ["job.finished"]
-    listed = client.get(f"/v1/deployments/{deployment['id']}/webhooks").json()
+    listed = client.get(f"/v1/deployments/{deployment['id']}/webhooks").json()["items"]
     assert [h["id"] for h in listed] == [hook["id"]] and "secret" not in listed[0]
 
-    job_id = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")["job"]["id"]
+    job_id = post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans++")["job"]["id"]
     assert worker.run_once()
     # The outbox row was written with the job's result; nothing was sent yet.
     [pending] = deliveries(client, deployment["id"], hook["id"])
@@ -228,7 +228,7 @@ def test_a_delivery_fails_after_its_attempts_and_a_dead_receiver_is_an_error(
     dead = Receiver([])
     dead.close()  # nothing listens there any more: every attempt is refused
     hook = client.post(f"/v1/deployments/{deployment['id']}/webhooks", json={"url": dead.url})
-    job = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")["job"]
+    job = post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans++")["job"]
     assert client.post(f"/v1/jobs/{job['id']}/cancel").json()["state"] == "cancelled"
     clock = Clock()
     dispatcher = dispatcher_at(
@@ -292,7 +292,8 @@ def test_the_workers_of_roadlink_serve_send_the_event_and_retry(tmp_path: Path) 
         # The worker records the answer after the receiver sent it: poll the log for it.
         deadline = time.monotonic() + 30
         while True:
-            [log] = api.get(f"/v1/deployments/{road}/webhooks/{hook['id']}/deliveries").json()
+            answer = api.get(f"/v1/deployments/{road}/webhooks/{hook['id']}/deliveries")
+            [log] = answer.json()["items"]
             if log["state"] != "pending" or time.monotonic() > deadline:
                 break
             time.sleep(0.05)

@@ -14,7 +14,7 @@ from sqlalchemy import Engine
 
 from roadlink.db.apikeys import key_prefix
 from roadlink.queue.worker import Worker
-from tests.helpers import assert_problem, post_csv, row_counts
+from tests.helpers import assert_problem, post_csv_batch, row_counts
 
 
 def run_all(worker: Worker) -> None:
@@ -31,8 +31,8 @@ def test_deleting_a_batch_takes_its_detections_and_the_jobs_that_read_them(
     admin_key: str,
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    first = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
-    second = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
+    first = post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans++")
+    second = post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans++")
     window = client.post(
         "/v1/jobs", json={"deployment_id": deployment["id"], "start": 0, "associator": "kmeans++"}
     )
@@ -62,7 +62,7 @@ def test_deleting_a_batch_takes_its_detections_and_the_jobs_that_read_them(
 def test_data_a_queued_or_running_job_reads_is_not_deleted(
     client: TestClient, engine: Engine, deployment: dict[str, Any], paper_csv: str
 ) -> None:
-    batch = post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
+    batch = post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans++")
     before = row_counts(engine)
     for path in (
         f"/v1/deployments/{deployment['id']}/batches/{batch['id']}",
@@ -86,8 +86,8 @@ def test_deleting_a_deployment_takes_everything_of_it(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     other = client.post("/v1/deployments", json={"name": "other road"}).json()
-    kept = post_csv(client, other["id"], paper_csv, associator="kmeans++")
-    post_csv(client, deployment["id"], paper_csv, associator="kmeans++")
+    kept = post_csv_batch(client, other["id"], paper_csv, associator="kmeans++")
+    post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans++")
     hooks = f"/v1/deployments/{deployment['id']}/webhooks"
     assert client.post(hooks, json={"url": "http://127.0.0.1:9/hook"}).status_code == 201
     run_all(worker)  # a job.finished delivery is now in the outbox
@@ -107,7 +107,7 @@ def test_deleting_a_deployment_takes_everything_of_it(
 def test_a_batch_is_deleted_only_through_its_own_deployment(
     client: TestClient, deployment: dict[str, Any], paper_csv: str
 ) -> None:
-    batch = post_csv(client, deployment["id"], paper_csv)
+    batch = post_csv_batch(client, deployment["id"], paper_csv)
     other = client.post("/v1/deployments", json={"name": "other road"}).json()
     assert_problem(client.delete(f"/v1/deployments/{other['id']}/batches/{batch['id']}"), 404)
     assert_problem(client.delete(f"/v1/deployments/{deployment['id']}/batches/{uuid.uuid4()}"), 404)

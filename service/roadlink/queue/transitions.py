@@ -26,6 +26,7 @@ from roadlink.association.result import AssociationResult
 from roadlink.db.drivers import driver_of
 from roadlink.db.json_columns import Selection
 from roadlink.db.models import Job, JobResult, JobState
+from roadlink.logs import current_request_id
 from roadlink.queue.webhooks import record_job_finished
 
 NOTIFY_CHANNEL = "roadlink_jobs"
@@ -69,6 +70,7 @@ class ClaimedJob:
     params: dict[str, Any]
     attempts: int
     max_attempts: int
+    request_id: str | None = None
 
 
 def enqueue_job(
@@ -90,6 +92,8 @@ def enqueue_job(
         params=params,
         state=JobState.QUEUED,
         max_attempts=max_attempts,
+        # The request this is done for, if any: the worker logs the job under its id.
+        request_id=current_request_id(),
     )
     # Runnable from the clock claims compare with (on PostgreSQL the database's, not this host's).
     job.created_at = job.run_after = driver_of(session).clock()
@@ -145,6 +149,7 @@ def claim_next_job(
             Job.params,
             Job.attempts,
             Job.max_attempts,
+            Job.request_id,
         )
         .execution_options(synchronize_session=False)
     )

@@ -13,6 +13,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from roadlink import __version__
 from roadlink.db.engine import transaction
+from roadlink.logs import log_context
 from roadlink.queue.webhook_signature import SIGNATURE_HEADER, signature
 from roadlink.queue.webhooks import (
     Backoff,
@@ -82,25 +83,26 @@ class WebhookDispatcher:
             )
         if delivery is None:
             return False
-        status_code, error = self._send(delivery)
-        with transaction(self.sessions) as session:
-            state = record_attempt(
-                session,
-                delivery=delivery,
-                status_code=status_code,
-                error=error,
-                backoff=self.backoff,
-                now=self._now(),
+        with log_context(**delivery.context):
+            status_code, error = self._send(delivery)
+            with transaction(self.sessions) as session:
+                state = record_attempt(
+                    session,
+                    delivery=delivery,
+                    status_code=status_code,
+                    error=error,
+                    backoff=self.backoff,
+                    now=self._now(),
+                )
+            log.info(
+                "webhook delivery %s (event %s, attempt %d) to %s: %s -> %s",
+                delivery.id,
+                delivery.event_id,
+                delivery.attempt,
+                delivery.url,
+                status_code if error is None else error,
+                state,
             )
-        log.info(
-            "webhook delivery %s (event %s, attempt %d) to %s: %s -> %s",
-            delivery.id,
-            delivery.event_id,
-            delivery.attempt,
-            delivery.url,
-            status_code if error is None else error,
-            state,
-        )
         return True
 
     def _now(self) -> datetime | None:

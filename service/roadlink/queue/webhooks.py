@@ -131,6 +131,9 @@ class DueDelivery:
     attempt: int
     url: str
     secret: str
+    # What the event is about, for the log line of each attempt (logs.CONTEXT_FIELDS): the
+    # deployment, and for a job's event the job and the request that created it.
+    context: dict[str, str]
 
 
 def has_due_delivery(session: Session, *, now: datetime | None = None) -> bool:
@@ -180,8 +183,27 @@ def claim_due_delivery(
     if hook is None:  # deleted meanwhile: its deliveries go with it
         return None
     return DueDelivery(
-        row.id, row.event_id, row.event_type, row.payload, row.attempts, hook.url, hook.secret
+        row.id,
+        row.event_id,
+        row.event_type,
+        row.payload,
+        row.attempts,
+        hook.url,
+        hook.secret,
+        _log_context(session, hook.deployment_id, row.payload),
     )
+
+
+def _log_context(session: Session, deployment_id: uuid.UUID, payload: str) -> dict[str, str]:
+    context = {"deployment_id": str(deployment_id)}
+    job = orjson.loads(payload).get("data", {}).get("job")
+    if isinstance(job, dict) and isinstance(job.get("id"), str):
+        context["job_id"] = job["id"]
+        # The request that created the job, if the job is still stored (retention may not).
+        request_id = session.scalar(select(Job.request_id).where(Job.id == uuid.UUID(job["id"])))
+        if request_id is not None:
+            context["request_id"] = request_id
+    return context
 
 
 @dataclass(frozen=True)

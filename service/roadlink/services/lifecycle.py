@@ -53,6 +53,7 @@ def delete_batch(
         deployment_id,
         detections,
         len(readers),
+        extra={"deployment_id": str(deployment_id), "batch_id": str(batch_id)},
     )
     return Deleted(1, detections, len(readers))
 
@@ -76,6 +77,7 @@ def delete_deployment(session: Session, *, deployment_id: uuid.UUID, actor: str)
         batches,
         detections,
         jobs,
+        extra={"deployment_id": str(deployment_id)},
     )
     return Deleted(batches, detections, jobs)
 

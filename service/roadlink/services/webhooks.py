@@ -9,9 +9,10 @@ import uuid
 from collections.abc import Sequence
 from urllib.parse import urlsplit
 
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from roadlink.db import listings
+from roadlink.db.listings import Keyset
 from roadlink.db.models import Webhook, WebhookDelivery
 from roadlink.queue.webhook_signature import new_secret
 from roadlink.queue.webhooks import redeliver
@@ -78,18 +79,11 @@ def create_webhook(
 
 
 def list_webhooks(
-    session: Session, *, deployment_id: uuid.UUID, limit: int, offset: int
+    session: Session, *, deployment_id: uuid.UUID, after: Keyset | None, limit: int
 ) -> Sequence[Webhook]:
-    """The deployment's webhooks, oldest first."""
+    """A page of the deployment's webhooks, oldest first (up to `limit + 1`: db/listings.py)."""
     require_deployment(session, deployment_id)
-    query = (
-        select(Webhook)
-        .where(Webhook.deployment_id == deployment_id)
-        .order_by(Webhook.created_at, Webhook.id)
-        .limit(limit)
-        .offset(offset)
-    )
-    return session.scalars(query).all()
+    return listings.list_webhooks(session, deployment_id=deployment_id, after=after, limit=limit)
 
 
 def require_webhook(session: Session, deployment_id: uuid.UUID, webhook_id: uuid.UUID) -> Webhook:
@@ -112,19 +106,12 @@ def list_deliveries(
     *,
     deployment_id: uuid.UUID,
     webhook_id: uuid.UUID,
+    after: Keyset | None,
     limit: int,
-    offset: int,
 ) -> Sequence[WebhookDelivery]:
-    """The webhook's delivery log, newest first."""
+    """A page of the webhook's delivery log, newest first (up to `limit + 1`)."""
     require_webhook(session, deployment_id, webhook_id)
-    query = (
-        select(WebhookDelivery)
-        .where(WebhookDelivery.webhook_id == webhook_id)
-        .order_by(WebhookDelivery.created_at.desc(), WebhookDelivery.id)
-        .limit(limit)
-        .offset(offset)
-    )
-    return session.scalars(query).all()
+    return listings.list_deliveries(session, webhook_id=webhook_id, after=after, limit=limit)
 
 
 def redeliver_delivery(

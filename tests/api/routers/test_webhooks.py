@@ -37,13 +37,18 @@ def test_register_list_read_and_delete(client: TestClient, deployment: dict[str,
     assert len(hook["secret"]) > 40
     one = client.get(f"{hooks_of(deployment)}/{hook['id']}").json()
     assert one == {k: v for k, v in hook.items() if k != "secret"}  # never shown again
-    assert client.get(hooks_of(deployment)).json() == [one]
-    assert client.get(f"{hooks_of(deployment)}/{hook['id']}/deliveries").json() == []
+    assert created.headers["location"] == f"{hooks_of(deployment)}/{hook['id']}"
+    assert client.get(hooks_of(deployment)).json() == {
+        "items": [one],
+        "next_cursor": None,
+        "next": None,
+    }
+    assert client.get(f"{hooks_of(deployment)}/{hook['id']}/deliveries").json()["items"] == []
 
     assert client.delete(f"{hooks_of(deployment)}/{hook['id']}").status_code == 204
     assert_problem(client.get(f"{hooks_of(deployment)}/{hook['id']}"), 404)
     assert_problem(client.delete(f"{hooks_of(deployment)}/{hook['id']}"), 404)
-    assert client.get(hooks_of(deployment)).json() == []
+    assert client.get(hooks_of(deployment)).json()["items"] == []
 
 
 @pytest.mark.parametrize(

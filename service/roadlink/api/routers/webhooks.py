@@ -4,17 +4,23 @@ from __future__ import annotations
 
 import uuid
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Request, Response
 
 from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import problem_responses
-from roadlink.api.schemas import DeliveryRead, WebhookCreate, WebhookCreated, WebhookRead
+from roadlink.api.pagination import LINK_HEADER, CursorQuery, LimitQuery, decode_cursor, page_of
+from roadlink.api.resourcelinks import CREATED_HEADERS, set_location
+from roadlink.api.schemas import (
+    DeliveryPage,
+    DeliveryRead,
+    WebhookCreate,
+    WebhookCreated,
+    WebhookPage,
+    WebhookRead,
+)
 from roadlink.services import webhooks
 
 router = APIRouter(prefix="/v1/deployments/{deployment_id}/webhooks", tags=["webhooks"])
-
-LIMIT = Query(default=100, ge=1, le=1000, description="Page size.")
-OFFSET = Query(default=0, ge=0, le=2**31 - 1, description="Items to skip.")
 
 
 @router.post(
@@ -22,11 +28,15 @@ OFFSET = Query(default=0, ge=0, le=2**31 - 1, description="Items to skip.")
     name="create",
     status_code=201,
     response_model=WebhookCreated,
-    responses=problem_responses(404, 413, 422),
+    responses={201: {"headers": CREATED_HEADERS}, **problem_responses(404, 413, 422)},
     summary="Register a webhook",
 )
 def create_webhook(
-    deployment_id: uuid.UUID, body: WebhookCreate, session: SessionDep, settings: SettingsDep
+    deployment_id: uuid.UUID,
+    body: WebhookCreate,
+    session: SessionDep,
+    settings: SettingsDep,
+    response: Response,
 ) -> WebhookCreated:
     """Events of the deployment will be POSTed to `url`, signed with the secret returned here,
     once (see docs/service.md, Webhooks, to verify a delivery)."""
@@ -39,22 +49,33 @@ def create_webhook(
         allow_http=settings.webhook_allow_http,
     )
     session.commit()
+    set_location(response, f"/v1/deployments/{deployment_id}/webhooks/{webhook.id}")
     return WebhookCreated.model_validate(webhook)
 
 
 @router.get(
     "",
     name="list",
-    response_model=list[WebhookRead],
-    responses=problem_responses(404, 422),
+    response_model=WebhookPage,
+    responses={200: {"headers": LINK_HEADER}, **problem_responses(404, 422)},
     summary="List a deployment's webhooks",
 )
 def list_webhooks(
-    deployment_id: uuid.UUID, session: SessionDep, limit: int = LIMIT, offset: int = OFFSET
-) -> list[WebhookRead]:
-    """The deployment's webhooks, oldest first (without their secrets)."""
-    found = webhooks.list_webhooks(session, deployment_id=deployment_id, limit=limit, offset=offset)
-    return [WebhookRead.model_validate(w) for w in found]
+    deployment_id: uuid.UUID,
+    session: SessionDep,
+    request: Request,
+    response: Response,
+    limit: LimitQuery = 100,
+    cursor: CursorQuery = None,
+) -> WebhookPage:
+    """The deployment's webhooks, oldest first (without their secrets), a page at a time
+    (follow `next`)."""
+    after = decode_cursor("webhooks", cursor)
+    found = webhooks.list_webhooks(session, deployment_id=deployment_id, after=after, limit=limit)
+    items, next_cursor, link = page_of("webhooks", found, limit, request, response)
+    return WebhookPage(
+        items=[WebhookRead.model_validate(w) for w in items], next_cursor=next_cursor, next=link
+    )
 
 
 @router.get(
@@ -91,23 +112,29 @@ def delete_webhook(
 @router.get(
     "/{webhook_id}/deliveries",
     name="list_deliveries",
-    response_model=list[DeliveryRead],
-    responses=problem_responses(404, 422),
+    response_model=DeliveryPage,
+    responses={200: {"headers": LINK_HEADER}, **problem_responses(404, 422)},
     summary="A webhook's delivery log",
 )
 def list_deliveries(
     deployment_id: uuid.UUID,
     webhook_id: uuid.UUID,
     session: SessionDep,
-    limit: int = LIMIT,
-    offset: int = OFFSET,
-) -> list[DeliveryRead]:
+    request: Request,
+    response: Response,
+    limit: LimitQuery = 100,
+    cursor: CursorQuery = None,
+) -> DeliveryPage:
     """Every delivery of the webhook, newest first: its event, state, attempts and the
-    receiver's last answer."""
+    receiver's last answer, a page at a time (follow `next`)."""
+    after = decode_cursor("deliveries", cursor)
     found = webhooks.list_deliveries(
-        session, deployment_id=deployment_id, webhook_id=webhook_id, limit=limit, offset=offset
+        session, deployment_id=deployment_id, webhook_id=webhook_id, after=after, limit=limit
     )
-    return [DeliveryRead.model_validate(d) for d in found]
+    items, next_cursor, link = page_of("deliveries", found, limit, request, response)
+    return DeliveryPage(
+        items=[DeliveryRead.model_validate(d) for d in items], next_cursor=next_cursor, next=link
+    )
 
 
 @router.post(

@@ -15,6 +15,14 @@ from roadlink.api.schemas.deployments import DeploymentCreate, DeploymentRead, S
 from roadlink.api.schemas.examples import EXAMPLE_ID
 from roadlink.api.schemas.health import HealthRead, ReadinessRead
 from roadlink.api.schemas.jobs import JobCreate, JobRead
+from roadlink.api.schemas.pages import (
+    BatchPage,
+    BatchSummary,
+    DeliveryPage,
+    DeploymentPage,
+    JobPage,
+    WebhookPage,
+)
 from roadlink.api.schemas.results import (
     AssociationResultRead,
     MetricsRead,
@@ -41,13 +49,18 @@ __all__ = [
     "AssociationResultRead",
     "AssociatorRead",
     "BatchCreate",
+    "BatchPage",
     "BatchRead",
+    "BatchSummary",
+    "DeliveryPage",
     "DeliveryRead",
     "DeploymentCreate",
+    "DeploymentPage",
     "DeploymentRead",
     "DetectionIn",
     "HealthRead",
     "JobCreate",
+    "JobPage",
     "JobRead",
     "MetricsRead",
     "PageLinkRead",
@@ -65,6 +78,7 @@ __all__ = [
     "TrackPointRead",
     "WebhookCreate",
     "WebhookCreated",
+    "WebhookPage",
     "WebhookRead",
     "batch_read",
 ]
