@@ -94,12 +94,9 @@ def test_configure_logging_writes_json_or_text_once(capsys):
 def test_a_workers_lines_for_a_job_carry_the_id_of_the_request_that_made_it(
     client, deployment, worker, json_lines
 ):
-    created = client.post(
-        f"/v1/deployments/{deployment['id']}/batches",
-        content=CSV,
-        params={"associator": "kmeans"},
-        headers={"content-type": "text/csv", "X-Request-ID": "gw7-0042"},
-    ).json()
+    created = post_csv_batch(
+        client, deployment["id"], CSV, associator="kmeans", request_id="gw7-0042"
+    )
     json_lines.truncate(0)
     json_lines.seek(0)
     assert worker.run_once()
@@ -134,12 +131,9 @@ def test_a_webhook_delivery_line_carries_the_deployment_job_and_the_jobs_request
     hooks = f"/v1/deployments/{deployment['id']}/webhooks"
     # Nothing listens on the discard port: the attempt fails at once, and is logged.
     assert client.post(hooks, json={"url": "http://127.0.0.1:9/"}).status_code == 201
-    created = client.post(
-        f"/v1/deployments/{deployment['id']}/batches",
-        content=CSV,
-        params={"associator": "kmeans"},
-        headers={"content-type": "text/csv", "X-Request-ID": "gw7-0043"},
-    ).json()
+    created = post_csv_batch(
+        client, deployment["id"], CSV, associator="kmeans", request_id="gw7-0043"
+    )
     assert worker.run_once()
     dispatcher = WebhookDispatcher(settings, make_session_factory(engine))
     try:

@@ -3,7 +3,6 @@ old batches that a queued job still reads, stay; on SQLite and PostgreSQL."""
 
 from __future__ import annotations
 
-import threading
 import uuid
 from datetime import timedelta
 from typing import Any
@@ -15,11 +14,9 @@ from sqlalchemy import Engine, update
 from roadlink.db import lifecycle
 from roadlink.db.engine import make_session_factory, transaction
 from roadlink.db.models import Batch, Job, WebhookDelivery, utcnow
-from roadlink.queue import housekeeping, retention
-from roadlink.queue.housekeeping import Housekeeping
+from roadlink.queue import retention
 from roadlink.queue.retention import delete_expired
 from roadlink.queue.worker import Worker
-from roadlink.settings import Settings
 from tests.helpers import post_csv_batch, row_counts
 
 
@@ -84,23 +81,3 @@ def test_retention_deletes_what_is_older_than_the_period(
     later = delete_expired(sessions, days=30, now=now)
     assert (later.jobs, later.batches) == (0, 2)
     assert delete_expired(sessions, days=30, now=now) == later.__class__(0, 0, 0, 0)
-
-
-def test_workers_apply_retention_when_they_start_and_then_hourly(
-    settings: Settings, engine: Engine, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    passes: list[float] = []
-    monkeypatch.setattr(housekeeping, "delete_expired", lambda _s, days: passes.append(days))
-    unset = Housekeeping(settings, make_session_factory(engine), threading.Event())
-    unset._retention_when_due()
-    assert passes == []
-    kept = settings.model_copy(update={"retention_days": 30.0})
-    chores = Housekeeping(kept, make_session_factory(engine), threading.Event())
-    chores._retention_when_due()
-    chores._retention_when_due()  # within the hour: not again
-    assert passes == [30.0]
-    chores._last_retention -= housekeeping.RETENTION_EVERY_SECONDS  # type: ignore[operator]
-    chores._retention_when_due()
-    assert passes == [30.0, 30.0]
-    unset.dispatcher.close()
-    chores.dispatcher.close()

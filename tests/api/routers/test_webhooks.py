@@ -3,7 +3,6 @@ deleting, and their 404s and 422s; sending is tests/queue/test_webhook_dispatch.
 
 from __future__ import annotations
 
-import typing
 import uuid
 from typing import Any
 
@@ -11,19 +10,11 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from roadlink.api.schemas.webhooks import EventType
-from roadlink.queue.webhooks import EVENT_TYPES
-from roadlink.services.problems import ServiceProblem
-from roadlink.services.webhooks import check_url
 from tests.helpers import assert_problem, row_counts
 
 
 def hooks_of(deployment: dict[str, Any]) -> str:
     return f"/v1/deployments/{deployment['id']}/webhooks"
-
-
-def test_the_api_offers_every_event_type_the_outbox_knows() -> None:
-    assert typing.get_args(EventType) == EVENT_TYPES
 
 
 def test_register_list_read_and_delete(client: TestClient, deployment: dict[str, Any]) -> None:
@@ -96,9 +87,3 @@ def test_bodies_and_ids_that_name_nothing(client: TestClient, deployment: dict[s
     assert_problem(client.get(f"{hooks_of(other)}/{hook['id']}/deliveries"), 404)
     missing = f"{hooks_of(deployment)}/{hook['id']}/deliveries/{uuid.uuid4()}/redeliver"
     assert_problem(client.post(missing), 404)
-
-
-def test_roadlink_webhook_allow_http_accepts_plain_http_to_any_host() -> None:
-    assert check_url("http://hooks.example/x", allow_http=True) == "http://hooks.example/x"
-    with pytest.raises(ServiceProblem):
-        check_url("http://hooks.example/x", allow_http=False)
