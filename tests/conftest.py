@@ -34,6 +34,8 @@ from tests.databases import (
 from tests.helpers import MakeKey
 
 TABLES_CHILD_FIRST = (
+    "webhook_delivery",
+    "webhook",
     "job_idempotency_key",
     "api_key",
     "job_result",

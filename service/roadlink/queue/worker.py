@@ -29,6 +29,7 @@ from roadlink.queue.associator_process import (
     Succeeded,
     TimedOut,
 )
+from roadlink.queue.housekeeping import Housekeeping
 from roadlink.queue.liveness import HeartbeatFile
 from roadlink.queue.transitions import (
     ClaimedJob,
@@ -63,6 +64,8 @@ class Worker:
         """Work until `stopping` is set."""
         wakeup = wakeup or make_wakeup(self.settings.database_url)
         self.associator_process.start()  # so that the first job does not wait for it
+        housekeeping = Housekeeping(self.settings, self.sessions, self.stopping)
+        housekeeping.start()
         log.info("worker %s started", self.id)
         try:
             while not self.stopping.is_set():
@@ -71,6 +74,7 @@ class Worker:
                     wakeup.wait(self.settings.poll_seconds)
         finally:
             wakeup.close()
+            housekeeping.join(self.settings.webhook_timeout_seconds + 5)
             self.liveness.remove()
             log.info("worker %s stopped", self.id)
 
