@@ -31,6 +31,7 @@ from roadlink.api.routers import (
     deployments,
     health,
     jobs,
+    live,
     pages,
     simulations,
 )
@@ -97,7 +98,7 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
     app.middleware("http")(app.state.metrics.middleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
     app.add_middleware(ProblemsForEveryError)  # added last: the outermost layer
-    protected = [m.router for m in (deployments, batches, jobs, associators, simulations)]
+    protected = [m.router for m in (deployments, batches, jobs, live, associators, simulations)]
     check_policy_covers(protected)
     for router in protected:
         app.include_router(
