@@ -25,6 +25,9 @@ def test_no_5xx_and_no_response_outside_the_schema(live_server: LiveServer) -> N
     # The rate limit would answer most generated requests with 429 (documented, but it tests
     # nothing else), so this server has none.
     live_server.env["ROADLINK_RATE_LIMIT_PER_SECOND"] = "0"
+    # A generated ?wait= or an event stream of a deployment it made holds its request up to
+    # the longest wait: one second keeps the run within its time.
+    live_server.env["ROADLINK_MAX_WAIT_SECONDS"] = "1"
     key = roadlink(
         "keys", "create", "--scope", "admin", env=live_server.env, cwd=live_server.directory
     )

@@ -152,6 +152,7 @@ async def list_vehicles(
 async def stream_vehicles(
     deployment_id: uuid.UUID,
     request: Request,
+    settings: SettingsDep,
     sessions: SessionFactoryDep,
     last_event_id: Annotated[
         str | None,
@@ -179,6 +180,7 @@ async def stream_vehicles(
 ) -> StreamingResponse:
     """Every vehicle published after the cursor, then each as it is published."""
     cursor = live.parse_cursor(last_event_id if last_event_id else after)
+    quiet_limit = min(idle_timeout or settings.max_wait_seconds, settings.max_wait_seconds)
     await run_in_threadpool(_read, sessions, deployment_id, cursor, 1)  # 404 before streaming
 
     async def events() -> AsyncIterator[bytes]:
@@ -197,7 +199,7 @@ async def stream_vehicles(
             if vehicles:
                 quiet_since, pause = now, live.WAIT_FIRST_POLL_SECONDS
                 continue
-            if idle_timeout is not None and now - quiet_since >= idle_timeout:
+            if now - quiet_since >= quiet_limit:
                 return
             if now - beat >= KEEPALIVE_SECONDS:
                 beat = now
