@@ -120,3 +120,37 @@ def test_an_unreachable_server_is_one_line_too():
     done = runner.invoke(app, ["jobs"], env={"ROADLINK_URL": f"http://127.0.0.1:{free_port()}"})
     assert done.exit_code == 1
     assert done.stderr.startswith("error: cannot reach http://127.0.0.1:")
+
+
+def test_follow_prints_the_vehicles_a_live_association_publishes(served: Served) -> None:
+    headers = {"Authorization": f"Bearer {served.key}"}
+    with httpx.Client(base_url=served.url, headers=headers, timeout=30) as http:
+        road = http.post("/v1/deployments", json={"name": "followed"}).json()["id"]
+        assert http.put(f"/v1/deployments/{road}/live", json={"lateness": 5}).status_code == 200
+        d = read_detections_csv(served.csv.read_text())
+        for sensor in sorted(set(d.sensor_id.tolist())):  # a gateway per sensor
+            body = write_detections_csv(d.take((d.sensor_id == sensor).nonzero()[0]))
+            posted = http.post(
+                f"/v1/deployments/{road}/batches",
+                content=body,
+                headers={"content-type": "text/csv"},
+            )
+            assert posted.status_code == 201, posted.text
+        http.post(f"/v1/deployments/{road}/live/flush")
+        # The long poll returns as soon as the worker has published the first vehicles.
+        first = http.get(f"/v1/deployments/{road}/vehicles?wait=30").json()
+        assert first["vehicles"]
+        while http.get(f"/v1/deployments/{road}/live").json()["pending"]:
+            http.get(f"/v1/deployments/{road}/vehicles?after={first['next']}&wait=1")
+    done = runner.invoke(app, ["follow", "--deployment", road, "--until-idle"], env=served.env)
+    assert done.exit_code == 0, done.output
+    vehicles = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [v["vehicle_id"] for v in vehicles] == [f"V{k}" for k in range(1, 11)]
+    offline = associate(d, "assignment")
+    assert sum(len(v["detections"]) for v in vehicles) == len(offline.detections)
+    as_csv = runner.invoke(
+        app, ["follow", "--deployment", road, "--until-idle", "--csv"], env=served.env
+    )
+    lines = as_csv.stdout.splitlines()
+    assert lines[0].startswith("vehicle_id,confidence,detection_id")
+    assert len(lines) == 1 + len(d)

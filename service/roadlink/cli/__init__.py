@@ -15,6 +15,7 @@ app = typer.Typer(
 from roadlink.cli import (  # noqa: E402,F401
     analysis,
     config,
+    follow,
     keys,
     locate,
     remote,
