@@ -10,10 +10,13 @@ from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import orjson
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
+from roadlink.association.detections import Detections
+from roadlink.association.result import AssociationResult, build_result
 from roadlink.db import live_records
 from roadlink.db.models import Batch, LiveAssociation, LiveVehicle
 from roadlink.services.deployments import require_deployment
@@ -180,3 +183,25 @@ async def wait_for_vehicles(
             raise ServiceProblem(408, "the client went away while waiting")
         await asyncio.sleep(min(pause, max(deadline - time.monotonic(), 0.0)))
         pause = min(pause * 2, WAIT_MAX_POLL_SECONDS)
+
+
+def recent_result(
+    session: Session, *, deployment_id: uuid.UUID, vehicles: int
+) -> AssociationResult | None:
+    """The deployment's last `vehicles` published vehicles as an association result (each a
+    target, scored when labelled), for the plots of `roadlink.plots`; None before the first."""
+    live = require_live(session, deployment_id)
+    found = live_records.recent_vehicles(session, deployment_id=deployment_id, limit=vehicles)
+    items = [(k, x) for k, v in enumerate(found) for x in orjson.loads(v.detections_json)]
+    if not items:
+        return None
+    detections = Detections(
+        position=np.array([x["position"] for _, x in items], dtype=np.float64),
+        velocity=np.array([x["velocity"] for _, x in items], dtype=np.float64),
+        timestamp=np.array([x["timestamp"] for _, x in items], dtype=np.float64),
+        sensor_id=np.array([x["sensor_id"] for _, x in items], dtype=object),
+        detection_id=np.array([f"{x['batch_id']}:{x['detection_id']}" for _, x in items], object),
+        target=np.array([x.get("target") for _, x in items], dtype=object),
+    )
+    groups = np.array([k for k, _ in items], dtype=np.int64)
+    return build_result(detections, groups, live.associator, live.params, None, None)

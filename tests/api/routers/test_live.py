@@ -46,6 +46,7 @@ def test_start_feed_flush_and_stop(
 ) -> None:
     base = f"/v1/deployments/{deployment['id']}"
     assert_problem(client.get(f"{base}/live"), 404)
+    assert_problem(client.get(f"{base}/live/plot"), 404)
     started = client.put(f"{base}/live", json={"associator": "assignment", "lateness": 5})
     assert started.status_code == 200, started.text
     assert started.json()["state"] == "running" and started.json()["data_clock"] is None
@@ -74,6 +75,9 @@ def test_start_feed_flush_and_stop(
     # Nothing after the last cursor; a wait that finds nothing answers empty, same cursor.
     tail = client.get(f"{base}/vehicles?after={vehicles[-1]['cursor']}&wait=0.1").json()
     assert tail == {"vehicles": [], "next": vehicles[-1]["cursor"]}
+    plot = client.get(f"{base}/live/plot?vehicles=5&format=svg")
+    assert plot.status_code == 200 and plot.headers["content-type"] == "image/svg+xml"
+    assert plot.text.count('id="target-T') == 5  # one line per vehicle
     stopped = client.delete(f"{base}/live")
     assert stopped.status_code == 200 and stopped.json()["state"] == "stopped"
     assert len(_all_vehicles(client, deployment["id"])) == 12  # what was published stays

@@ -10,15 +10,17 @@ from collections.abc import AsyncIterator, Sequence
 from typing import Annotated
 
 import orjson
-from fastapi import APIRouter, Header, Query, Request
+from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.responses import StreamingResponse
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.concurrency import run_in_threadpool
 
 from roadlink.api.deps import SessionDep, SessionFactoryDep, SettingsDep
-from roadlink.api.errors import problem_responses
+from roadlink.api.errors import ApiProblem, problem_responses
+from roadlink.api.jobresults import render_elsewhere
 from roadlink.api.schemas.live import LiveStart, LiveStatusRead, VehiclePage, VehicleRead
 from roadlink.db.models import LiveVehicle
+from roadlink.plots import PlotFormat
 from roadlink.services import live
 
 router = APIRouter(prefix="/v1/deployments/{deployment_id}", tags=["live"])
@@ -84,6 +86,43 @@ def stop_live(deployment_id: uuid.UUID, session: SessionDep) -> LiveStatusRead:
 def flush_live(deployment_id: uuid.UUID, session: SessionDep) -> LiveStatusRead:
     """The next step publishes every open track as final, whatever the data clock says."""
     return _status(live.flush_live(session, deployment_id=deployment_id))
+
+
+PLOT_MEDIA_TYPES = {"png": "image/png", "svg": "image/svg+xml"}
+
+
+@router.get(
+    "/live/plot",
+    name="plot_live",
+    response_class=Response,
+    responses={
+        200: {
+            "description": "The time-space plot of the last vehicles, as PNG or SVG.",
+            "content": {
+                "image/png": {"schema": {"type": "string", "format": "binary"}},
+                "image/svg+xml": {"schema": {"type": "string"}},
+            },
+        },
+        **problem_responses(404, 409, 422),
+    },
+    summary="The last vehicles of a live association on a time-space plot",
+)
+def plot_live(
+    deployment_id: uuid.UUID,
+    session: SessionDep,
+    vehicles: Annotated[int, Query(ge=1, le=500, description="How many, newest.")] = 50,
+    format: Annotated[PlotFormat, Query(description="png or svg.")] = "png",
+) -> Response:
+    """Position against time, one line per vehicle (as a job's time-space plot, each vehicle a
+    target; wrongly grouped detections ringed when labelled). 409 before the first vehicle."""
+    result = live.recent_result(session, deployment_id=deployment_id, vehicles=vehicles)
+    if result is None:
+        raise ApiProblem(409, f"deployment {deployment_id} has published no vehicle yet")
+    return Response(
+        render_elsewhere(result, "time-space", format),
+        media_type=PLOT_MEDIA_TYPES[format],
+        headers={"Cache-Control": "no-cache"},
+    )
 
 
 def _read(
