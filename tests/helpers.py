@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import uuid
 from collections.abc import Callable
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
@@ -13,7 +14,8 @@ from sqlalchemy import Engine, func, select
 from roadlink.association.detections import Detections
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory, transaction
-from roadlink.db.models import Base
+from roadlink.db.json_columns import BatchSelection
+from roadlink.db.models import Base, Job, JobState
 
 MakeKey = Callable[..., str]
 """The `make_key` fixture: (scope, *deployment ids) -> a new API key."""
@@ -87,6 +89,37 @@ def store_batches(engine: Engine, *batches: Detections) -> tuple[uuid.UUID, list
             for d in batches
         ]
     return deployment.id, ids
+
+
+def post_csv_batch(client: Any, deployment_id: str, text: str, **params: str) -> dict[str, Any]:
+    """Post a CSV batch to the deployment (with `params` in the query, e.g. associator=...);
+    the batch as created (201), with its job in `job` when one was asked for."""
+    posted = client.post(
+        f"/v1/deployments/{deployment_id}/batches",
+        content=text,
+        headers={"content-type": "text/csv"},
+        params=params,
+    )
+    assert posted.status_code == 201, posted.text
+    return dict(posted.json())
+
+
+def unsaved_job(**values: Any) -> Job:
+    """A job as the database would hand it back (queued, over one batch of a deployment),
+    never stored, with `values` changed: for what reads a job, not what stores it."""
+    defaults: dict[str, Any] = {
+        "id": uuid.uuid4(),
+        "deployment_id": uuid.uuid4(),
+        "selection": BatchSelection((uuid.uuid4(),)),
+        "associator": "kmeans",
+        "params": {},
+        "state": JobState.QUEUED,
+        "progress": 0.0,
+        "attempts": 0,
+        "max_attempts": 3,
+        "created_at": datetime(2026, 1, 1, tzinfo=UTC),
+    }
+    return Job(**{**defaults, **values})
 
 
 def assert_problem(response: Any, status: int) -> dict[str, Any]:

@@ -1,5 +1,6 @@
 """The package's dependency rules, checked on the source: a layer imports only the layers
-below it, and the core knows nothing of HTTP, SQL, jobs or the command line."""
+below it, and the core knows nothing of HTTP, SQL, jobs or the command line; and the tests
+mirror the package."""
 
 from __future__ import annotations
 
@@ -18,10 +19,11 @@ ALLOWED = {
     "simulation": {"association", "simulation"},
     "plots": {"association"},
     "settings": set(),
+    "logs": {"settings", "logs"},
     "configuration": {"settings"},
     "db": {"association", "db", "settings"},
-    "queue": {"association", "db", "queue", "settings"},
-    "services": {"association", "db", "queue", "settings", "services"},
+    "queue": {"association", "db", "queue", "settings", "logs"},
+    "services": {"association", "db", "queue", "settings", "services", "logs"},
     "api": {
         "association",
         "simulation",
@@ -29,6 +31,7 @@ ALLOWED = {
         "db",
         "queue",
         "settings",
+        "logs",
         "services",
         "api",
     },
@@ -39,6 +42,7 @@ ALLOWED = {
         "db",
         "queue",
         "settings",
+        "logs",
         "configuration",
         "services",
         "api",
@@ -156,3 +160,26 @@ def test_only_the_drivers_tell_the_databases_apart() -> None:
             if isinstance(node, ast.Constant) and node.value in ("sqlite", "postgresql")
         }
         assert not names, f"{path} tells {sorted(names)} apart itself"
+
+
+# Modules that are pure declarations (models, constants) and so have no test module of their own;
+# each says where what uses it is tested.
+DECLARATIONS_ONLY = {
+    "api/schemas/examples.py",  # one constant
+    "api/schemas/health.py",  # two response models (tests/api/routers/test_health.py)
+    "services/problems.py",  # the problem item and its exception (every service test's refusals)
+}
+
+
+def test_every_module_with_behaviour_has_its_test_module_at_the_mirror_path() -> None:
+    tests = PACKAGE.parent.parent / "tests"
+    missing = [
+        f"tests/{relative.parent / ('test_' + relative.name)}".replace("/./", "/")
+        for path in sorted(PACKAGE.rglob("*.py"))
+        if path.name not in ("__init__.py", "__main__.py")
+        and (relative := path.relative_to(PACKAGE)).as_posix() not in DECLARATIONS_ONLY
+        and not (tests / relative.parent / f"test_{relative.name}").is_file()
+    ]
+    assert not missing, (
+        f"modules without their test module (or add to DECLARATIONS_ONLY): {missing}"
+    )

@@ -5,7 +5,15 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from benchmarks.report import Section
-from benchmarks.sections import associators, ingest, latency, overhead, peer, throughput
+from benchmarks.sections import (
+    associators,
+    files,
+    ingest,
+    latency,
+    overhead,
+    peer,
+    throughput,
+)
 
 SectionRunner = Callable[[bool], Section]
 
@@ -16,4 +24,5 @@ SECTIONS: dict[str, SectionRunner] = {
     latency.NAME: latency.run,
     throughput.NAME: throughput.run,
     overhead.NAME: overhead.run,
+    files.NAME: files.run,
 }

@@ -88,6 +88,12 @@ class Settings(BaseSettings):
         "the server is closing is lost.",
     )
     log_level: str = Field(default="info", description="Log level of the API and the workers.")
+    log_format: Literal["text", "json"] = Field(
+        default="text",
+        description="`text`: a line of words per record. `json`: one JSON object per line "
+        "(timestamp, level, logger, message, and the request, deployment, batch and job ids "
+        "that apply), from the API, its access log and the workers alike.",
+    )
     stall_log_ms: float = Field(
         default=100.0,
         ge=0,

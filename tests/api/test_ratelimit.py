@@ -1,5 +1,5 @@
 """The per-key rate limit (`api/ratelimit.py`): token buckets, and the Retry-After they give.
-(`tests/security/test_auth.py` checks the limit through the API.)"""
+(`tests/api/test_auth.py` checks the limit through the API.)"""
 
 from __future__ import annotations
 

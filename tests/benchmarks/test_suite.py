@@ -144,7 +144,15 @@ def test_the_runner_prints_markdown_and_writes_the_json_document(tmp_path, monke
 
 
 def test_every_section_is_registered_under_its_name():
-    assert list(SECTIONS) == ["associators", "peer", "ingest", "latency", "throughput", "overhead"]
+    assert list(SECTIONS) == [
+        "associators",
+        "peer",
+        "ingest",
+        "latency",
+        "throughput",
+        "overhead",
+        "files",
+    ]
 
 
 @pytest.mark.slow

@@ -73,6 +73,22 @@ def test_submit_waits_for_the_job_and_prints_the_summary_the_core_gives(served):
     assert job not in queued.stdout
 
 
+def test_jobs_follows_the_pages_the_server_sends(served):
+    """With pages of one job, `jobs` follows `next` to list each of them once, newest first,
+    and stops at --limit."""
+    submitted(served)
+    submitted(served)
+    headers = {"Authorization": f"Bearer {served.key}"}
+    whole = httpx.get(f"{served.url}/v1/jobs", params={"limit": 1000}, headers=headers).json()
+    expected = [job["id"] for job in whole["items"]]
+    assert len(expected) >= 2 and whole["next"] is None
+    paged = runner.invoke(app, ["jobs", "--page-size", "1", "--limit", "1000"], env=served.env)
+    assert paged.exit_code == 0, paged.output
+    assert [line.split("\t")[0] for line in paged.stdout.splitlines()[1:]] == expected
+    two = runner.invoke(app, ["jobs", "--page-size", "1", "--limit", "2"], env=served.env)
+    assert [line.split("\t")[0] for line in two.stdout.splitlines()[1:]] == expected[:2]
+
+
 def test_submit_passes_the_associators_parameters(served):
     _, job, _ = submitted(served, "--associator", "kmeans", "--param", "n_targets=3")
     shown = runner.invoke(app, ["result", job, "--json"], env=served.env)

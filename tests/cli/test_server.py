@@ -131,6 +131,7 @@ def _wait_for_workers(process: subprocess.Popen[bytes], count: int) -> set[int]:
     return _children(process.pid)
 
 
+@pytest.mark.slow  # starts a real worker process and waits for its first heartbeat
 def test_worker_check_is_alive_while_a_worker_runs_and_not_once_it_stopped(tmp_path):
     database = f"sqlite:///{tmp_path / 'w.db'}"
     env = {

@@ -145,7 +145,7 @@ def test_the_workers_probe_tells_a_heartbeating_worker_from_a_stale_one(
     compose, tmp_path, age_seconds, exit_code
 ):
     # The probe's own argv, run as the container runs it (a file as a worker leaves it: see
-    # tests/cli/test_server_commands.py for a real worker).
+    # tests/cli/test_server.py for a real worker).
     probe = compose["services"]["worker"]["healthcheck"]["test"]
     heartbeat = tmp_path / "worker-7"
     heartbeat.touch()

@@ -26,7 +26,8 @@ RUN_BEFORE_KILL_SECONDS = 2.0
 
 def test_acknowledged_batches_survive_a_sigkill_whole(live_server: LiveServer) -> None:
     # Four gateways share one key and the check reads back every batch: on a fast machine that
-    # is well past the per-key rate limit, which this test is not about (test_auth.py is).
+    # is well past the per-key rate limit, which this test is not about
+    # (tests/api/test_auth.py is).
     live_server.env["ROADLINK_RATE_LIMIT_PER_SECOND"] = "0"
     key = roadlink(
         "keys", "create", "--scope", "admin", env=live_server.env, cwd=live_server.directory

@@ -25,6 +25,7 @@ from roadlink.api.expired_idempotency_keys import forgetting_expired_keys
 from roadlink.api.jobresults import JobResultCache
 from roadlink.api.prometheus import ApiMetrics
 from roadlink.api.ratelimit import TokenBuckets
+from roadlink.api.requestids import HEADER, RequestIdMiddleware
 from roadlink.api.routers import (
     associators,
     batches,
@@ -50,6 +51,11 @@ the row at fault.
 
 Every /v1 route needs an API key, `Authorization: Bearer <key>` (create one with
 `roadlink keys create --scope admin|read|ingest`); the health routes are open.
+
+Lists come a page at a time: follow `next` (or pass `next_cursor` as `cursor`) until it is null.
+Send `X-Request-ID` (at most 128 letters, digits and `._:-`) to name a request in the service's
+logs; every response echoes it (or the id the server made up), problems carry it as
+`request_id`, and a job keeps the id of the request that created it.
 """
 
 TAGS = [
@@ -97,7 +103,9 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
 
     app.middleware("http")(app.state.metrics.middleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
-    app.add_middleware(ProblemsForEveryError)  # added last: the outermost layer
+    app.add_middleware(ProblemsForEveryError)
+    # Added last: the outermost layer, so that every answer (a problem included) has the id.
+    app.add_middleware(RequestIdMiddleware)
     protected = [m.router for m in (deployments, batches, jobs, live, associators, simulations)]
     check_policy_covers(protected)
     for router in protected:
@@ -141,8 +149,24 @@ def _openapi_with_batch_body(app: FastAPI) -> dict[str, Any]:
                 components.setdefault(name, definition)
             components[model.__name__] = schema
         document["components"]["schemas"] = dict(sorted(components.items()))
+        _declare_request_id_header(document)
         app.openapi_schema = document
     return app.openapi_schema
+
+
+def _declare_request_id_header(document: dict[str, Any]) -> None:
+    """Every response carries X-Request-ID (api/requestids.py): say so on each."""
+    header = {
+        "description": "The request's id: the X-Request-ID sent, when fit to log (at most 128 "
+        "letters, digits and `._:-`), else one the server made. Its log lines carry it.",
+        "schema": {"type": "string"},
+    }
+    document["components"]["headers"] = {HEADER: header}
+    reference = {"$ref": f"#/components/headers/{HEADER}"}
+    for operations in document.get("paths", {}).values():
+        for operation in operations.values():
+            for response in operation.get("responses", {}).values():
+                response.setdefault("headers", {})[HEADER] = reference
 
 
 def openapi_json(app: FastAPI) -> str:

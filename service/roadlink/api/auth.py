@@ -117,6 +117,7 @@ POLICY: dict[tuple[str, str], Rule] = {
     ("POST", "/v1/deployments/{deployment_id}/batches"): Rule(
         frozenset({ApiKeyScope.INGEST}), _path_deployment
     ),
+    ("GET", "/v1/deployments/{deployment_id}/batches"): _read_or_ingest(_path_deployment),
     ("GET", "/v1/batches/{batch_id}"): _read_or_ingest(_batch_deployment),
     # Jobs read stored detections and change none: an analyst's (read) work. Ingest keys start
     # jobs only through `associate` on their own uploads.

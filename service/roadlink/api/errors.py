@@ -19,9 +19,11 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.exc import DBAPIError, IntegrityError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from roadlink.association.detections import Problem
+from roadlink.logs import current_request_id
 from roadlink.services.problems import ProblemItem, ServiceProblem
 
 log = logging.getLogger("roadlink")
@@ -67,6 +69,11 @@ class ProblemDetail(BaseModel):
         description="For a failure of the server (5xx, or a conflict in the database): the id "
         "under which its log holds the details.",
     )
+    request_id: str | None = Field(
+        default=None,
+        description="The request's id (its X-Request-ID, or the one the server gave it): every "
+        "log line of the request carries it.",
+    )
 
 
 class ApiProblem(ServiceProblem):
@@ -86,6 +93,15 @@ class ApiProblem(ServiceProblem):
         self.headers = headers
 
 
+def parameter_problem(name: str, message: str) -> ApiProblem:
+    """A 422 for one query parameter, named as a request validation error names it."""
+    return ApiProblem(
+        422,
+        f"the request is invalid: {name}: {message}",
+        errors=[ProblemItem(field=name, message=message)],
+    )
+
+
 def problem_response(
     request: Request,
     status: int,
@@ -102,6 +118,7 @@ def problem_response(
         instance=request.url.path,
         errors=list(errors),
         error_id=error_id,
+        request_id=current_request_id(),
     )
     return JSONResponse(
         body.model_dump(mode="json"),
@@ -137,6 +154,11 @@ def validation_item(
     )
 
 
+HTTP_METHODS = ("DELETE", "GET", "HEAD", "OPTIONS", "PATCH", "POST", "PUT")
+
+# What FastAPI says, as a 400, of a body it could not decode at all.
+FASTAPI_UNREADABLE_BODY = "There was an error parsing the body"
+
 # Where FastAPI found a request parameter: the first part of a validation error's location.
 PARAMETER_SOURCES = ("query", "path", "header")
 
@@ -144,6 +166,11 @@ PARAMETER_SOURCES = ("query", "path", "header")
 def _request_item(error: Mapping[str, Any]) -> ProblemItem:
     """A request validation error: a parameter is named by its name (no pointer), a body field
     by its path, the body as a whole by nothing."""
+    if error.get("type") == "json_invalid":  # its location is a character offset, no field
+        where = [part for part in error.get("loc", ()) if isinstance(part, int)]
+        reason = error.get("ctx", {}).get("error") or error.get("msg", "invalid")
+        at = f" at character {where[0]}" if where else ""
+        return ProblemItem(message=f"the body is not valid JSON{at}: {reason}")
     location = [part for part in error.get("loc", ()) if part != "body"]
     message = error.get("msg", "invalid")
     if location and location[0] in PARAMETER_SOURCES:
@@ -170,20 +197,59 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         detail = exc.detail if isinstance(exc.detail, str) else HTTPStatus(exc.status_code).phrase
-        return problem_response(request, exc.status_code, detail, headers=exc.headers)
+        headers = exc.headers
+        if exc.status_code == 400 and detail == FASTAPI_UNREADABLE_BODY:
+            # FastAPI's answer to a JSON body that is not even text (not UTF-8): malformed JSON
+            # like any other, so the same documented 422 as its JSONDecodeError gets.
+            message = "the body is not valid JSON: it is not UTF-8 text"
+            return problem_response(
+                request,
+                422,
+                f"the request is invalid: body: {message}",
+                [ProblemItem(message=message)],
+            )
+        if exc.status_code == 405:
+            headers = {**(headers or {}), "Allow": ", ".join(_allowed_methods(request))}
+        return problem_response(request, exc.status_code, detail, headers=headers)
+
+
+def _allowed_methods(request: Request) -> list[str]:
+    """Every method some route of the path takes. Starlette's own 405 names those of the first
+    route that matched the path only, while FastAPI makes a route per method (GET and POST
+    /v1/deployments are two). Each method is tried on the app's routes as they match a request."""
+    return [
+        method
+        for method in HTTP_METHODS
+        if any(
+            route.matches({**request.scope, "method": method})[0] == Match.FULL
+            for route in request.app.router.routes
+        )
+    ]
+
+
+RETRY_AFTER_HEADER = {
+    "Retry-After": {
+        "description": "Seconds to wait before trying again.",
+        "schema": {"type": "integer", "minimum": 1},
+    }
+}
 
 
 def problem_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    """OpenAPI `responses` entries for error statuses, all problem details."""
-    return {
-        status: {
+    """OpenAPI `responses` entries for error statuses, all problem details (a 429 or 503 with
+    its Retry-After)."""
+    responses: dict[int | str, dict[str, Any]] = {}
+    for status in statuses:
+        response: dict[str, Any] = {
             "description": status_title(status),
             "content": {
                 PROBLEM_MEDIA_TYPE: {"schema": {"$ref": "#/components/schemas/ProblemDetail"}}
             },
         }
-        for status in statuses
-    }
+        if status in (429, 503):
+            response["headers"] = RETRY_AFTER_HEADER
+        responses[status] = response
+    return responses
 
 
 def status_title(status: int) -> str:

@@ -18,6 +18,7 @@ from roadlink.api.errors import ApiProblem, problems_from_detections, validation
 from roadlink.api.schemas import AssociateRequest
 from roadlink.association.csvio import FEATURE_COLUMNS, TooManyRows, read_csv_columns
 from roadlink.association.detections import DetectionError, Detections, Problem
+from roadlink.association.fast_csv import fast_detections
 from roadlink.db.json_columns import Sensor
 from roadlink.services.problems import ProblemItem
 
@@ -131,6 +132,9 @@ def _shape_problems(rows: list[dict[str, Any]]) -> list[ProblemItem]:
 
 def parse_csv_batch(body: bytes, sensors: list[Sensor] | None, max_detections: int) -> Detections:
     """A detection CSV body into detections; reading stops past `max_detections` rows."""
+    fast = fast_detections(body, max_rows=max_detections)
+    if fast is not None and _declared_sensors_agree(fast, sensors):
+        return fast
     try:
         text = body.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -158,6 +162,17 @@ def validate_columns(columns: dict[str, Any], json_prefix: str | None) -> Detect
             _count(exc.problems),
             errors=problems_from_detections(exc.problems, json_prefix=json_prefix),
         ) from None
+
+
+def _declared_sensors_agree(detections: Detections, sensors: list[Sensor] | None) -> bool:
+    """True when every sensor of `detections` is declared at its position and is the one
+    declared there: then `_fill_declared_sensors` would neither object nor fill anything."""
+    if sensors is None:
+        return True
+    by_id = {s.sensor_id: s.position for s in sensors}
+    by_position = {s.position: s.sensor_id for s in sensors}
+    pairs = set(zip(detections.sensor_id.tolist(), detections.position.tolist(), strict=True))
+    return all(by_id.get(sid) == pos and by_position.get(pos) == sid for sid, pos in pairs)
 
 
 def _fill_declared_sensors(

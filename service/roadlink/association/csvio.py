@@ -17,6 +17,7 @@ import io
 import numpy as np
 
 from roadlink.association.detections import DetectionError, Detections, Problem
+from roadlink.association.fast_csv import fast_detections
 
 # What a spreadsheet takes for the start of a formula.
 FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
@@ -37,11 +38,19 @@ class TooManyRows(DetectionError):
         self.max_rows = max_rows
 
 
-def read_detections_csv(text: str) -> Detections:
-    """Parse and validate detection CSV text; DetectionError names the row and field at fault.
+def read_detections_csv(text: str | bytes) -> Detections:
+    """Parse and validate detection CSV text (or its UTF-8 bytes); DetectionError names the row
+    and field at fault (UnicodeDecodeError for bytes that are not UTF-8).
 
-    Rows are numbered from 1 at the first data row (line 2 of the file).
+    Rows are numbered from 1 at the first data row (line 2 of the file). A plain, valid file is
+    read by the fast path (`fast_csv`); any other is read again here, which names every problem.
     """
+    data = text if isinstance(text, bytes) else text.encode("utf-8")
+    fast = fast_detections(data)
+    if fast is not None:
+        return fast
+    if isinstance(text, bytes):
+        text = text.decode("utf-8-sig")
     columns = read_csv_columns(text)
     return Detections.from_columns(
         columns["position"] or [],

@@ -3,9 +3,6 @@
 
 from __future__ import annotations
 
-import csv
-import io
-import math
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -16,6 +13,7 @@ import numpy as np
 from roadlink.association.backprojection import backproject_times
 from roadlink.association.csvio import FEATURE_COLUMNS, feature_cells_of, spreadsheet_safe
 from roadlink.association.detections import Detections, FloatArray, IntArray, feature_arrays
+from roadlink.association.result_text import float_texts, matrix_csv
 from roadlink.association.scores import Metrics, score_grouping
 
 
@@ -65,6 +63,12 @@ class AssociationResult:
         confidences only from one that builds targets from links)."""
         features = self.detections.features
         rows = _detection_rows(self.detections, features)
+        if self.link_confidence is not None:
+            # Each row appears once in the document: a target's detection carries the
+            # confidence of the link into it (none for its first), an unassigned one none.
+            linked = np.flatnonzero((self.groups >= 0) & ~np.isnan(self.link_confidence))
+            for i, link in zip(linked.tolist(), self.link_confidence[linked].tolist(), strict=True):
+                rows[i]["link_confidence"] = link
         adapted = (
             {} if self.effective_params is None else {"effective_params": self.effective_params}
         )
@@ -93,15 +97,11 @@ class AssociationResult:
                 **summary,
                 "detections": [rows[i] for i in members.tolist()],
             }
-        links = self.link_confidence[members].tolist()
         return {
             "target": f"T{k + 1}",
             "confidence": confidence,
             **summary,
-            "detections": [
-                rows[i] if math.isnan(link) else {**rows[i], "link_confidence": link}
-                for i, link in zip(members.tolist(), links, strict=True)
-            ],
+            "detections": [rows[i] for i in members.tolist()],
         }
 
     def target_features(self, members: IntArray, features: tuple[str, ...]) -> dict[str, Any]:
@@ -134,35 +134,35 @@ class AssociationResult:
         d = self.detections
         sensors = _sensors_in_road_order(d)
         column = {sid: k for k, sid in enumerate(sensors)}
-        # Python values once, not a numpy scalar conversion per cell.
-        sensor_of = [column[sid] for sid in d.sensor_id.tolist()]
+        # Each column formatted once (float_texts: `repr` of each, formatted by orjson).
         ids = [spreadsheet_safe(str(i)) for i in d.detection_id.tolist()]
-        velocities = [repr(v) for v in d.velocity.tolist()]
-        timestamps = [repr(t) for t in d.timestamp.tolist()]
-        columns = {"detection_id": ids, "velocity": velocities, "timestamp": timestamps}
+        columns = {
+            "detection_id": ids,
+            "velocity": float_texts(d.velocity),
+            "timestamp": float_texts(d.timestamp),
+        }
         if self.link_confidence is not None:
-            links = ["" if math.isnan(c) else repr(c) for c in self.link_confidence.tolist()]
+            links = float_texts(self.link_confidence)
+            for i in np.flatnonzero(np.isnan(self.link_confidence)).tolist():
+                links[i] = ""
             columns["link_confidence"] = links
         for name in d.features:
             columns[name] = feature_cells_of(d, name)
-        fields = list(columns)
-        values = list(columns.values())
-        out = io.StringIO()
-        writer = csv.writer(out, lineterminator="\n")
-        writer.writerow(
-            ["target"]
-            + (["confidence"] if self.link_confidence is not None else [])
-            + [spreadsheet_safe(f"{sid}_{field}") for sid in sensors for field in fields]
-        )
-        for k, members in enumerate(self.target_members()):
-            cells: list[list[list[str]]] = [[[] for _ in fields] for _ in sensors]
-            for i in members.tolist():
-                for cell, of_field in zip(cells[sensor_of[i]], values, strict=True):
-                    cell.append(of_field[i])
-            confidence = self.target_confidence(members)
-            head = [f"T{k + 1}"] + ([] if confidence is None else [repr(confidence)])
-            writer.writerow(head + [";".join(v) for cell in cells for v in cell])
-        return out.getvalue()
+
+        def write_rows(writer: Any) -> None:
+            """Cell by cell: a cell may list several detections (possible with K-means)."""
+            sensor_of = [column[sid] for sid in d.sensor_id.tolist()]
+            values = list(columns.values())
+            for k, members in enumerate(self.target_members()):
+                cells: list[list[list[str]]] = [[[] for _ in values] for _ in sensors]
+                for i in members.tolist():
+                    for cell, of_field in zip(cells[sensor_of[i]], values, strict=True):
+                        cell.append(of_field[i])
+                confidence = self.target_confidence(members)
+                head = [f"T{k + 1}"] + ([] if confidence is None else [repr(confidence)])
+                writer.writerow(head + [";".join(v) for cell in cells for v in cell])
+
+        return matrix_csv(self, sensors, columns, write_rows)
 
 
 def result_from_dict(

@@ -30,6 +30,8 @@ from roadlink.db.models import JobState
 # (20 requests per second per key), and often enough for a bar that moves.
 POLL_SECONDS = 0.5
 FINISHED = {JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED}
+# The server's largest page (GET /v1/jobs?limit=).
+MAX_PAGE_SIZE = 1000
 
 UrlOption = Annotated[
     str, typer.Option("--url", envvar="ROADLINK_URL", help="The server's address.")
@@ -156,19 +158,29 @@ def jobs_command(
     deployment: Annotated[
         uuid.UUID | None, typer.Option(help="Only this deployment's jobs.")
     ] = None,
-    limit: Annotated[int, typer.Option(min=1, max=1000, help="Most jobs to list.")] = 20,
+    limit: Annotated[int, typer.Option(min=1, help="Most jobs to list.")] = 20,
+    page_size: Annotated[
+        int, typer.Option(min=1, max=MAX_PAGE_SIZE, help="Jobs asked for per request.")
+    ] = MAX_PAGE_SIZE,
     url: UrlOption = DEFAULT_URL,
     key: KeyOption = None,
 ) -> None:
-    """Jobs, newest first: id, state, progress, associator, deployment, created."""
-    query: dict[str, str | int] = {"limit": limit}
+    """Jobs, newest first: id, state, progress, associator, deployment, created. The server
+    sends them a page at a time; this follows each page's `next` link until `--limit`."""
+    query: dict[str, str | int] = {"limit": min(limit, page_size)}
     if state is not None:
         query["state"] = state.value
     if deployment is not None:
         query["deployment_id"] = str(deployment)
-    with remote(url, key) as server:
-        jobs = server.json("GET", "/v1/jobs", params=query)
     typer.echo("id\tstate\tprogress\tassociator\tdeployment\tcreated")
-    for job in jobs:
-        fields = (job["state"], f"{job['progress']:.2f}", job["associator"], job["deployment_id"])
-        typer.echo("\t".join((job["id"], *fields, job["created_at"])))
+    shown = 0
+    with remote(url, key) as server:
+        page = server.json("GET", "/v1/jobs", params=query)
+        while True:
+            for job in page["items"][: limit - shown]:
+                fields = (job["state"], f"{job['progress']:.2f}", job["associator"])
+                typer.echo("\t".join((job["id"], *fields, job["deployment_id"], job["created_at"])))
+                shown += 1
+            if shown >= limit or page["next"] is None:
+                return
+            page = server.json("GET", page["next"])

@@ -18,6 +18,7 @@ from typing import Annotated, Any
 import typer
 
 from roadlink.cli import app
+from roadlink.logs import configure_logging
 from roadlink.settings import Settings
 
 log = logging.getLogger("roadlink")
@@ -142,9 +143,7 @@ def serve_command(
             err=True,
         )
         raise typer.Exit(code=2)
-    logging.basicConfig(
-        level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(message)s"
-    )
+    configure_logging(settings)
     _migrate(settings)
     _say_how_to_get_a_key(settings)
     _exit_on_sigterm()
@@ -171,10 +170,15 @@ def serve_command(
 
 def uvicorn_options(settings: Settings) -> dict[str, Any]:
     """How `serve` runs uvicorn."""
+    from uvicorn.config import LOGGING_CONFIG
+
     return {
         "host": settings.host,
         "port": settings.port,
         "log_level": settings.log_level,
+        # JSON: no configuration of uvicorn's own, so that its loggers, the access log among
+        # them, reach the handler `configure_logging` set up and its JSON lines.
+        "log_config": None if settings.log_format == "json" else LOGGING_CONFIG,
         "timeout_keep_alive": settings.keep_alive_seconds,
         "timeout_graceful_shutdown": graceful_shutdown_seconds(settings),
     }
@@ -218,9 +222,7 @@ def worker_command(
 
         run_worker_process(settings)
         return
-    logging.basicConfig(
-        level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(message)s"
-    )
+    configure_logging(settings)
     _exit_on_sigterm()
     pool = WorkerPool(settings, workers)
     try:  # from the first worker's start on, as in `serve`

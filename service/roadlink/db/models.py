@@ -211,6 +211,9 @@ class Job(Base):
     duration_seconds: Mapped[float | None] = mapped_column(Float)
     # How many detections the job covered (known once it ran).
     n_detections: Mapped[int | None] = mapped_column(Integer)
+    # The id of the request that created the job (X-Request-ID), so that the worker's log lines
+    # for the job carry it; None for a job made outside a request.
+    request_id: Mapped[str | None] = mapped_column(String(128))
 
 
 class JobResult(Base):

@@ -41,17 +41,6 @@ def get_deployment(session: Session, *, deployment_id: uuid.UUID) -> Deployment 
     return session.get(Deployment, deployment_id)
 
 
-def list_deployments(session: Session, *, limit: int, offset: int) -> Sequence[Deployment]:
-    """Deployments, oldest first."""
-    query = (
-        select(Deployment)
-        .order_by(Deployment.created_at, Deployment.id)
-        .limit(limit)
-        .offset(offset)
-    )
-    return session.scalars(query).all()
-
-
 def get_batch(session: Session, *, batch_id: uuid.UUID) -> Batch | None:
     """The batch, or None."""
     return session.get(Batch, batch_id)
@@ -217,23 +206,6 @@ def _selects(deployment_id: uuid.UUID, selection: Selection) -> Any:
 def get_job(session: Session, *, job_id: uuid.UUID) -> Job | None:
     """The job, or None."""
     return session.get(Job, job_id)
-
-
-def list_jobs(
-    session: Session,
-    *,
-    deployment_id: uuid.UUID | None,
-    limit: int,
-    offset: int,
-    state: JobState | None = None,
-) -> Sequence[Job]:
-    """Jobs, newest first, optionally of one deployment and in one state."""
-    query = select(Job).order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)
-    if deployment_id is not None:
-        query = query.where(Job.deployment_id == deployment_id)
-    if state is not None:
-        query = query.where(Job.state == state)
-    return session.scalars(query).all()
 
 
 def get_job_result(session: Session, *, job_id: uuid.UUID) -> JobResult | None:

@@ -26,6 +26,7 @@ from roadlink.association.result import AssociationResult
 from roadlink.db.drivers import driver_of
 from roadlink.db.json_columns import Selection
 from roadlink.db.models import Job, JobResult, JobState
+from roadlink.logs import current_request_id
 
 NOTIFY_CHANNEL = "roadlink_jobs"
 """Channel told, when the transaction commits, of every job that becomes runnable (its id, or
@@ -66,6 +67,7 @@ class ClaimedJob:
     params: dict[str, Any]
     attempts: int
     max_attempts: int
+    request_id: str | None = None
 
 
 def enqueue_job(
@@ -87,6 +89,8 @@ def enqueue_job(
         params=params,
         state=JobState.QUEUED,
         max_attempts=max_attempts,
+        # The request this is done for, if any: the worker logs the job under its id.
+        request_id=current_request_id(),
     )
     # Runnable from the clock claims compare with (on PostgreSQL the database's, not this host's).
     job.created_at = job.run_after = driver_of(session).clock()
@@ -142,6 +146,7 @@ def claim_next_job(
             Job.params,
             Job.attempts,
             Job.max_attempts,
+            Job.request_id,
         )
         .execution_options(synchronize_session=False)
     )

@@ -7,6 +7,7 @@ losing the worker); a heartbeat thread renews the job's lease and reports progre
 
 from __future__ import annotations
 
+import contextvars
 import logging
 import os
 import signal
@@ -20,6 +21,7 @@ from sqlalchemy import Engine
 from roadlink.db.engine import make_engine, make_session_factory, transaction
 from roadlink.db.live_records import has_live_step, release_live_leases
 from roadlink.db.repository import load_detections
+from roadlink.logs import configure_logging, log_context
 from roadlink.queue.associator_process import (
     AssociatorProcess,
     Died,
@@ -133,7 +135,20 @@ class Worker:
             log.warning("rescued expired leases: %d requeued, %d failed", requeued, failed)
 
     def run_job(self, job: ClaimedJob) -> None:
-        """Run a claimed job to its end: succeeded, failed, queued again, or given up."""
+        """Run a claimed job to its end: succeeded, failed, queued again, or given up; its log
+        lines carry its id, its deployment's, its batch's (when it has one) and the id of the
+        request that created it."""
+        batch_ids = getattr(job.selection, "batch_ids", None)
+        with log_context(
+            job_id=job.id,
+            deployment_id=job.deployment_id,
+            batch_id=batch_ids[0] if batch_ids and len(batch_ids) == 1 else None,
+            request_id=job.request_id,
+        ):
+            log.info("job %s claimed (attempt %d of %d)", job.id, job.attempts, job.max_attempts)
+            self._run_job(job)
+
+    def _run_job(self, job: ClaimedJob) -> None:
         started = time.monotonic()
         limit = self.settings.job_timeout_seconds
         progress = [0.0]
@@ -143,8 +158,11 @@ class Worker:
         def record_progress(share: float) -> None:
             progress[0] = share
 
+        # In this context, so that its log lines carry the job's ids as well.
         heartbeat = threading.Thread(
-            target=self._heartbeat, args=(job, progress, lost, done), daemon=True
+            target=contextvars.copy_context().run,
+            args=(self._heartbeat, job, progress, lost, done),
+            daemon=True,
         )
         heartbeat.start()
         try:
@@ -288,9 +306,8 @@ def run_worker_process(settings: Settings, parent_pid: int | None = None) -> Non
 
     A job in progress is interrupted at its next progress report and handed back to the queue.
     """
-    logging.basicConfig(
-        level=settings.log_level.upper(),
-        format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s",
+    configure_logging(
+        settings, text_format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s"
     )
     worker = Worker(settings)
 

@@ -20,7 +20,7 @@ def test_create_get_and_list(client: TestClient) -> None:
     assert body["name"] == "ring road"
     assert [s["sensor_id"] for s in body["sensors"]] == ["A", "B"]  # road order
     assert client.get(f"/v1/deployments/{body['id']}").json() == body
-    assert body in client.get("/v1/deployments").json()
+    assert body in client.get("/v1/deployments").json()["items"]
 
 
 def test_unknown_deployment_is_404(client: TestClient) -> None:

@@ -17,18 +17,7 @@ from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.association.detections import Detections
 from roadlink.cli import app as cli
 from roadlink.queue.worker import Worker
-from tests.helpers import assert_problem, detection_rows
-
-
-def _post_csv(client: TestClient, deployment_id: str, text: str, **params: str) -> dict[str, Any]:
-    response = client.post(
-        f"/v1/deployments/{deployment_id}/batches",
-        content=text,
-        headers={"content-type": "text/csv"},
-        params=params,
-    )
-    assert response.status_code == 201, response.text
-    return dict(response.json())
+from tests.helpers import assert_problem, detection_rows, post_csv_batch
 
 
 @pytest.mark.parametrize(
@@ -49,7 +38,7 @@ def test_the_service_computes_what_the_cli_computes(
     associator: str,
     params: dict[str, Any],
 ) -> None:
-    batch = _post_csv(client, deployment["id"], paper_csv)
+    batch = post_csv_batch(client, deployment["id"], paper_csv)
     created = client.post(
         "/v1/jobs", json={"batch_id": batch["id"], "associator": associator, "params": params}
     )
@@ -83,7 +72,7 @@ def test_the_service_computes_what_the_cli_computes(
 def test_status_progress_and_409_until_finished(
     client: TestClient, worker: Worker, deployment: dict[str, Any], paper_csv: str
 ) -> None:
-    batch = _post_csv(client, deployment["id"], paper_csv, associator=DEFAULT_ASSOCIATOR)
+    batch = post_csv_batch(client, deployment["id"], paper_csv, associator=DEFAULT_ASSOCIATOR)
     job = client.get(f"/v1/jobs/{batch['job']['id']}").json()
     assert (job["state"], job["progress"], job["attempts"]) == ("queued", 0.0, 0)
     problem = assert_problem(client.get(f"/v1/jobs/{job['id']}/result"), 409)
@@ -97,13 +86,13 @@ def test_status_progress_and_409_until_finished(
         100,
     )
     assert job["duration_seconds"] > 0 and job["finished_at"] >= job["started_at"]
-    assert job in client.get("/v1/jobs", params={"deployment_id": deployment["id"]}).json()
+    assert job in client.get("/v1/jobs", params={"deployment_id": deployment["id"]}).json()["items"]
 
 
 def test_wait_returns_the_result_once_the_worker_finishes(
     client: TestClient, running_worker: Worker, deployment: dict[str, Any], paper_csv: str
 ) -> None:
-    batch = _post_csv(client, deployment["id"], paper_csv, associator=DEFAULT_ASSOCIATOR)
+    batch = post_csv_batch(client, deployment["id"], paper_csv, associator=DEFAULT_ASSOCIATOR)
     result = client.get(f"/v1/jobs/{batch['job']['id']}/result", params={"wait": 10})
     assert result.status_code == 200, result.text
     assert result.json()["n_targets"] == 10 and result.json()["n_detections"] == 100
@@ -113,8 +102,10 @@ def test_a_job_over_several_batches_or_a_time_window(
     client: TestClient, worker: Worker, deployment: dict[str, Any]
 ) -> None:
     # One gateway per sensor: each vehicle's two detections arrive in different batches.
-    first = _post_csv(client, deployment["id"], "position,velocity,timestamp\n0,30,1\n0,40,10\n")
-    second = _post_csv(
+    first = post_csv_batch(
+        client, deployment["id"], "position,velocity,timestamp\n0,30,1\n0,40,10\n"
+    )
+    second = post_csv_batch(
         client, deployment["id"], "position,velocity,timestamp\n100,30,4.3\n100,40,12.5\n"
     )
     by_batches = client.post(
@@ -180,7 +171,7 @@ def test_the_result_says_which_parameters_assignment_ran_with(
 def test_job_requests_that_cannot_run(
     client: TestClient, deployment: dict[str, Any], paper_csv: str
 ) -> None:
-    batch = _post_csv(client, deployment["id"], paper_csv)
+    batch = post_csv_batch(client, deployment["id"], paper_csv)
     problem = assert_problem(client.post("/v1/jobs", json={"associator": "kmeans"}), 422)
     assert "exactly one of" in problem["detail"]
     problem = assert_problem(
@@ -199,7 +190,7 @@ def test_job_requests_that_cannot_run(
         client.post("/v1/jobs", json={"batch_id": batch["id"], "params": {"colour": 1}}), 422
     )
     assert "colour" in problem["detail"]
-    one_sensor = _post_csv(client, deployment["id"], "position,velocity,timestamp\n0,30,1\n")
+    one_sensor = post_csv_batch(client, deployment["id"], "position,velocity,timestamp\n0,30,1\n")
     problem = assert_problem(client.post("/v1/jobs", json={"batch_id": one_sensor["id"]}), 422)
     assert "one sensor position" in problem["detail"]
     assert_problem(client.get("/v1/jobs/00000000-0000-0000-0000-000000000000"), 404)
@@ -209,7 +200,7 @@ def test_job_requests_that_cannot_run(
 def test_cancel(
     client: TestClient, worker: Worker, deployment: dict[str, Any], paper_csv: str
 ) -> None:
-    batch = _post_csv(client, deployment["id"], paper_csv, associator="kmeans")
+    batch = post_csv_batch(client, deployment["id"], paper_csv, associator="kmeans")
     job_id = batch["job"]["id"]
     cancelled = client.post(f"/v1/jobs/{job_id}/cancel")
     assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled"
@@ -236,7 +227,7 @@ def test_result_csv_cannot_run_as_a_spreadsheet_formula(
             (0.0, 100.0, 0.0, 100.0), (0.0, 3.3, 9.0, 12.3), ("=S1", "@S2") * 2, ids, strict=True
         )
     )
-    batch = _post_csv(client, deployment["id"], text)
+    batch = post_csv_batch(client, deployment["id"], text)
     job = client.post("/v1/jobs", json={"batch_id": batch["id"]}).json()["id"]
     assert worker.run_once()
     matrix = client.get(f"/v1/jobs/{job}/result", params={"format": "csv"})

@@ -13,11 +13,14 @@ from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem, problem_responses
 from roadlink.api.idempotency_header import IdempotencyDep, media_type
 from roadlink.api.ingest import parse_csv_batch, parse_json_batch
-from roadlink.api.schemas import AssociateRequest, BatchRead, batch_read
+from roadlink.api.pagination import LINK_HEADER, CursorQuery, LimitQuery, decode_cursor, page_of
+from roadlink.api.resourcelinks import CREATED_HEADERS, set_location
+from roadlink.api.schemas import AssociateRequest, BatchPage, BatchRead, BatchSummary, batch_read
 from roadlink.association import key_values
-from roadlink.db import repository
+from roadlink.db import listings, repository
 from roadlink.db.models import Deployment
 from roadlink.services.batches import ParsedBatch, batch_job, store_batch_once
+from roadlink.services.deployments import require_deployment
 from roadlink.services.problems import ProblemItem
 
 router = APIRouter(tags=["batches"])
@@ -33,7 +36,8 @@ BATCH_REQUEST_BODY: dict[str, Any] = {
     "content": {
         "application/json": {"schema": {"$ref": "#/components/schemas/BatchCreate"}},
         "text/csv": {
-            "schema": {"type": "string"},
+            # Not blank: an empty body is refused (400) before it is read.
+            "schema": {"type": "string", "pattern": "\\S"},
             "example": CSV_EXAMPLE,
         },
     },
@@ -45,7 +49,7 @@ BATCH_REQUEST_BODY: dict[str, Any] = {
     name="create",
     status_code=201,
     response_model=BatchRead,
-    responses=problem_responses(400, 404, 413, 415, 422),
+    responses={201: {"headers": CREATED_HEADERS}, **problem_responses(400, 404, 413, 415, 422)},
     openapi_extra={"requestBody": BATCH_REQUEST_BODY},
     summary="Upload a batch of detections",
 )
@@ -111,7 +115,42 @@ async def create_batch(
     result, replayed = await run_in_threadpool(work, session)
     if replayed:
         response.headers["Idempotent-Replayed"] = "true"
+    set_location(response, f"/v1/batches/{result.id}")
     return result
+
+
+@router.get(
+    "/v1/deployments/{deployment_id}/batches",
+    name="list",
+    response_model=BatchPage,
+    responses={200: {"headers": LINK_HEADER}, **problem_responses(404, 422)},
+    summary="List a deployment's batches",
+)
+def list_batches(
+    deployment_id: uuid.UUID,
+    session: SessionDep,
+    request: Request,
+    response: Response,
+    limit: LimitQuery = 100,
+    cursor: CursorQuery = None,
+) -> BatchPage:
+    """The batches posted to a deployment, newest first, a page at a time (follow `next`): each
+    with its detection counts, time span, the sensors it reports and the job enqueued with it."""
+    after = decode_cursor("batches", cursor)
+    require_deployment(session, deployment_id)
+    found = listings.list_batches(session, deployment_id=deployment_id, after=after, limit=limit)
+    batches, next_cursor, link = page_of("batches", found, limit, request, response)
+    ids = [b.id for b in batches]
+    sensors = listings.sensors_of_batches(session, batch_ids=ids)
+    jobs = listings.jobs_by_id(session, job_ids=[b.job_id for b in batches if b.job_id])
+    items = [
+        BatchSummary(
+            **dict(batch_read(b, jobs.get(b.job_id) if b.job_id else None)),
+            sensors=sensors[b.id],
+        )
+        for b in batches
+    ]
+    return BatchPage(items=items, next_cursor=next_cursor, next=link)
 
 
 def _csv_association(associator: str | None, param: list[str]) -> AssociateRequest | None:

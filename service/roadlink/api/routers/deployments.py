@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import uuid
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Request, Response
 
 from roadlink.api.deps import SessionDep
 from roadlink.api.errors import problem_responses
-from roadlink.api.schemas import DeploymentCreate, DeploymentRead
-from roadlink.db import repository
+from roadlink.api.pagination import LINK_HEADER, CursorQuery, LimitQuery, decode_cursor, page_of
+from roadlink.api.resourcelinks import CREATED_HEADERS, set_location
+from roadlink.api.schemas import DeploymentCreate, DeploymentPage, DeploymentRead
+from roadlink.db import listings, repository
 from roadlink.db.json_columns import Sensor
 from roadlink.services.deployments import require_deployment
 
@@ -21,10 +23,12 @@ router = APIRouter(prefix="/v1/deployments", tags=["deployments"])
     name="create",
     status_code=201,
     response_model=DeploymentRead,
-    responses=problem_responses(413, 422),
+    responses={201: {"headers": CREATED_HEADERS}, **problem_responses(413, 422)},
     summary="Create a deployment",
 )
-def create_deployment(body: DeploymentCreate, session: SessionDep) -> DeploymentRead:
+def create_deployment(
+    body: DeploymentCreate, session: SessionDep, response: Response
+) -> DeploymentRead:
     """A stretch of road. Declare its sensors to have detections of unknown sensors rejected."""
     sensors = None
     if body.sensors:
@@ -32,24 +36,31 @@ def create_deployment(body: DeploymentCreate, session: SessionDep) -> Deployment
         sensors = [Sensor(s.sensor_id, s.position) for s in in_road_order]
     deployment = repository.create_deployment(session, name=body.name, sensors=sensors)
     session.commit()
+    set_location(response, f"/v1/deployments/{deployment.id}")
     return DeploymentRead.model_validate(deployment)
 
 
 @router.get(
     "",
     name="list",
-    response_model=list[DeploymentRead],
-    responses=problem_responses(422),
+    response_model=DeploymentPage,
+    responses={200: {"headers": LINK_HEADER}, **problem_responses(422)},
     summary="List deployments",
 )
 def list_deployments(
     session: SessionDep,
-    limit: int = Query(default=100, ge=1, le=1000, description="Page size."),
-    offset: int = Query(default=0, ge=0, le=2**31 - 1, description="Deployments to skip."),
-) -> list[DeploymentRead]:
-    """Deployments, oldest first."""
-    found = repository.list_deployments(session, limit=limit, offset=offset)
-    return [DeploymentRead.model_validate(d) for d in found]
+    request: Request,
+    response: Response,
+    limit: LimitQuery = 100,
+    cursor: CursorQuery = None,
+) -> DeploymentPage:
+    """Deployments, oldest first, a page at a time (follow `next`)."""
+    after = decode_cursor("deployments", cursor)
+    found = listings.list_deployments(session, after=after, limit=limit)
+    items, next_cursor, link = page_of("deployments", found, limit, request, response)
+    return DeploymentPage(
+        items=[DeploymentRead.model_validate(d) for d in items], next_cursor=next_cursor, next=link
+    )
 
 
 @router.get(

@@ -19,9 +19,20 @@ from roadlink.api.errors import ApiProblem, problem_responses
 from roadlink.api.idempotency_header import IdempotencyDep
 from roadlink.api.jobresults import SucceededJobDep, unfinished_detail
 from roadlink.api.pagelinks import DEFAULT_LIFETIME_SECONDS, MAX_LIFETIME_SECONDS, page_token
+from roadlink.api.pagination import (
+    LINK_HEADER,
+    CursorQuery,
+    LimitQuery,
+    aware_time,
+    date_time_or_null,
+    decode_cursor,
+    page_of,
+)
+from roadlink.api.resourcelinks import CREATED_HEADERS, set_location
 from roadlink.api.schemas import (
     AssociationResultRead,
     JobCreate,
+    JobPage,
     JobRead,
     PageLinkRead,
     PositionsRead,
@@ -34,7 +45,7 @@ from roadlink.association.localisation import (
     sample_trajectory,
     target_index,
 )
-from roadlink.db import repository
+from roadlink.db import listings, repository
 from roadlink.db.models import ApiKey, Job, JobState
 from roadlink.plots import PlotFormat, PlotKind
 from roadlink.queue.transitions import cancel_job
@@ -69,7 +80,7 @@ MATRIX_CSV_EXAMPLE = (
     name="create",
     status_code=202,
     response_model=JobRead,
-    responses=problem_responses(404, 413, 422),
+    responses={202: {"headers": CREATED_HEADERS}, **problem_responses(404, 413, 422)},
     summary="Enqueue an association job",
 )
 def create_job(
@@ -92,28 +103,47 @@ def create_job(
     )
     if replayed:
         response.headers["Idempotent-Replayed"] = "true"
+    set_location(response, f"/v1/jobs/{job.id}")
     return job
 
 
 @router.get(
     "",
     name="list",
-    response_model=list[JobRead],
-    responses=problem_responses(422),
+    response_model=JobPage,
+    responses={200: {"headers": LINK_HEADER}, **problem_responses(422)},
     summary="List jobs",
 )
 def list_jobs(
     session: SessionDep,
+    request: Request,
+    response: Response,
     deployment_id: uuid.UUID | None = Query(default=None, description="Only this deployment's."),
     state: JobState | None = Query(default=None, description="Only jobs in this state."),
-    limit: int = Query(default=100, ge=1, le=1000, description="Page size."),
-    offset: int = Query(default=0, ge=0, le=2**31 - 1, description="Jobs to skip."),
-) -> list[JobRead]:
-    """Jobs, newest first."""
-    found = repository.list_jobs(
-        session, deployment_id=deployment_id, state=state, limit=limit, offset=offset
+    created_since: str | None = Query(
+        default=None,
+        description="Only jobs created at or after this time: ISO 8601 with a time zone, e.g. "
+        "2026-01-01T00:00:00Z.",
+        json_schema_extra=date_time_or_null,
+    ),
+    limit: LimitQuery = 100,
+    cursor: CursorQuery = None,
+) -> JobPage:
+    """Jobs, newest first, a page at a time (follow `next`)."""
+    after = decode_cursor("jobs", cursor)
+    since = None if created_since is None else aware_time("created_since", created_since)
+    found = listings.list_jobs(
+        session,
+        deployment_id=deployment_id,
+        state=state,
+        created_since=since,
+        after=after,
+        limit=limit,
     )
-    return [JobRead.model_validate(j) for j in found]
+    items, next_cursor, link = page_of("jobs", found, limit, request, response)
+    return JobPage(
+        items=[JobRead.model_validate(j) for j in items], next_cursor=next_cursor, next=link
+    )
 
 
 @router.get(
@@ -292,12 +322,13 @@ def get_target(
     name="create_page_link",
     status_code=201,
     response_model=PageLinkRead,
-    responses=problem_responses(404, 422),
+    responses={201: {"headers": CREATED_HEADERS}, **problem_responses(404, 422)},
     summary="Make a link to a job's page for a browser",
 )
 def create_page_link(
     job_id: uuid.UUID,
     request: Request,
+    response: Response,
     session: SessionDep,
     settings: SettingsDep,
     expires_in: Annotated[
@@ -319,12 +350,12 @@ def create_page_link(
     principal = principal_of(request)
     key = None if principal.prefix is None else session.get(ApiKey, uuid.UUID(principal.id))
     if key is None:  # authentication is disabled: the page needs no token
+        set_location(response, url)
         return PageLinkRead(url=url, expires_at=None)
     expires = int(time.time()) + expires_in
-    return PageLinkRead(
-        url=f"{url}?token={page_token(key, job_id, expires)}",
-        expires_at=datetime.fromtimestamp(expires, UTC),
-    )
+    link = f"{url}?token={page_token(key, job_id, expires)}"
+    set_location(response, link)
+    return PageLinkRead(url=link, expires_at=datetime.fromtimestamp(expires, UTC))
 
 
 @router.post(

@@ -6,11 +6,12 @@ import dataclasses
 from typing import cast
 
 import numpy as np
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 from pydantic import BaseModel, ValidationError
 
 from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem, problem_responses, validation_item
+from roadlink.api.resourcelinks import CREATED_HEADERS, set_location
 from roadlink.api.schemas import BatchRead, SimulationCreate, batch_read
 from roadlink.association.detections import Detections
 from roadlink.db.json_columns import Sensor
@@ -31,11 +32,11 @@ router = APIRouter(prefix="/v1/simulations", tags=["simulations"])
     name="create",
     status_code=201,
     response_model=BatchRead,
-    responses=problem_responses(404, 413, 422),
+    responses={201: {"headers": CREATED_HEADERS}, **problem_responses(404, 413, 422)},
     summary="Simulate a labelled batch",
 )
 def create_simulation(
-    body: SimulationCreate, session: SessionDep, settings: SettingsDep
+    body: SimulationCreate, session: SessionDep, settings: SettingsDep, response: Response
 ) -> BatchRead:
     """Generate detections with Algorithm 1 (a preset, changed by `config`, and a seed) and store
     them as a labelled batch of the deployment; with `associate`, its job is enqueued too."""
@@ -70,6 +71,7 @@ def create_simulation(
         batch=ParsedBatch(detections, "simulation", body.associate),
     )
     session.commit()
+    set_location(response, f"/v1/batches/{batch.id}")
     return batch_read(batch, batch_job(session, batch))
 
 

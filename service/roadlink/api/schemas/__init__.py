@@ -15,6 +15,7 @@ from roadlink.api.schemas.deployments import DeploymentCreate, DeploymentRead, S
 from roadlink.api.schemas.examples import EXAMPLE_ID
 from roadlink.api.schemas.health import HealthRead, ReadinessRead
 from roadlink.api.schemas.jobs import JobCreate, JobRead
+from roadlink.api.schemas.pages import BatchPage, BatchSummary, DeploymentPage, JobPage
 from roadlink.api.schemas.results import (
     AssociationResultRead,
     MetricsRead,
@@ -35,12 +36,16 @@ __all__ = [
     "AssociationResultRead",
     "AssociatorRead",
     "BatchCreate",
+    "BatchPage",
     "BatchRead",
+    "BatchSummary",
     "DeploymentCreate",
+    "DeploymentPage",
     "DeploymentRead",
     "DetectionIn",
     "HealthRead",
     "JobCreate",
+    "JobPage",
     "JobRead",
     "MetricsRead",
     "PageLinkRead",

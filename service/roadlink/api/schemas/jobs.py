@@ -41,6 +41,7 @@ class JobRead(BaseModel):
                     "started_at": "2026-01-01T12:00:01Z",
                     "finished_at": None,
                     "duration_seconds": None,
+                    "request_id": "4bf92f3577b34da6a3ce929d0e0e4736",
                 }
             ]
         },
@@ -64,6 +65,11 @@ class JobRead(BaseModel):
     started_at: datetime | None
     finished_at: datetime | None
     duration_seconds: float | None = Field(description="Run time of the successful run.")
+    request_id: str | None = Field(
+        default=None,
+        description="The id of the request that created the job (its X-Request-ID): the "
+        "worker's log lines for the job carry it.",
+    )
 
 
 class JobCreate(BaseModel):

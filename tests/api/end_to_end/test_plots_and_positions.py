@@ -4,7 +4,6 @@ at a time, one target's trajectory; the same answers as the core on the same det
 from __future__ import annotations
 
 import json
-import os
 import re
 import uuid
 import xml.etree.ElementTree as ET
@@ -15,8 +14,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
-from roadlink.api import jobresults
-from roadlink.api.jobresults import JobResultCache, render_elsewhere
+from roadlink.api.jobresults import JobResultCache
 from roadlink.association import associate
 from roadlink.association.csvio import read_detections_csv
 from roadlink.association.localisation import positions_at, sample_trajectory
@@ -24,8 +22,8 @@ from roadlink.association.result import AssociationResult
 from roadlink.association.scores import wrongly_grouped
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory
-from roadlink.queue.worker import WORKER_NICENESS, Worker
-from tests.helpers import MakeKey, assert_problem, bearer
+from roadlink.queue.worker import Worker
+from tests.helpers import MakeKey, assert_problem, bearer, post_csv_batch
 
 SVG = "{http://www.w3.org/2000/svg}"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -40,23 +38,12 @@ def local(paper_csv: str) -> AssociationResult:
     return associate(read_detections_csv(paper_csv), ASSOCIATOR)
 
 
-def _post_job(client: TestClient, deployment_id: str, text: str) -> dict[str, Any]:
-    posted = client.post(
-        f"/v1/deployments/{deployment_id}/batches",
-        content=text,
-        headers={"content-type": "text/csv"},
-        params={"associator": ASSOCIATOR},
-    )
-    assert posted.status_code == 201, posted.text
-    return dict(posted.json())
-
-
 @pytest.fixture
 def done(
     client: TestClient, worker: Worker, deployment: dict[str, Any], paper_csv: str
 ) -> dict[str, Any]:
     """A succeeded job over the paper batch: its batch (with the job in `job`)."""
-    batch = _post_job(client, deployment["id"], paper_csv)
+    batch = post_csv_batch(client, deployment["id"], paper_csv, associator=ASSOCIATOR)
     assert worker.run_once()
     return batch
 
@@ -116,25 +103,6 @@ def test_the_result_is_rebuilt_with_its_labels_and_cached(
 
     assert cache.get(job.id, load) is cache.get(job.id, load)
     assert len(calls) == 1
-
-
-def test_the_cache_keeps_within_its_budget(local: AssociationResult) -> None:
-    cache = JobResultCache(max_detections=2 * len(local.detections))
-    first, second, third = (uuid.uuid4() for _ in range(3))
-    for job_id in (first, second):
-        cache.get(job_id, lambda: local)
-    cache.get(first, lambda: None)  # used again: the second is now the oldest
-    cache.get(third, lambda: local)
-    assert cache.get(second, lambda: None) is None
-    assert cache.get(first, lambda: None) is not None
-
-
-def test_plots_are_drawn_at_the_workers_lower_priority(local: AssociationResult) -> None:
-    """Drawing, the API's heaviest work, must not take a core from its event loop."""
-    assert render_elsewhere(local, "time-space", "svg").startswith(b"<?xml")
-    assert jobresults._renderer is not None
-    niceness = jobresults._renderer.submit(os.nice, 0).result()
-    assert niceness == min(os.nice(0) + WORKER_NICENESS, 19)
 
 
 def test_positions_agree_with_the_core(
@@ -208,7 +176,7 @@ ROUTES = ("plot", "plot?format=svg", "positions?t=10", "targets/T1")
 def test_unfinished_and_unknown_jobs(
     client: TestClient, deployment: dict[str, Any], paper_csv: str
 ) -> None:
-    queued = _post_job(client, deployment["id"], paper_csv)["job"]["id"]
+    queued = post_csv_batch(client, deployment["id"], paper_csv, associator=ASSOCIATOR)["job"]["id"]
     for route in ROUTES:
         problem = assert_problem(client.get(f"/v1/jobs/{queued}/{route}"), 409)
         assert "queued" in problem["detail"] and "wait" in problem["detail"]
@@ -264,36 +232,3 @@ def test_the_route_names_follow_the_contract(client: TestClient) -> None:
         "jobs-get_target",
         "jobs-create_page_link",
     }
-
-
-def test_every_view_of_a_result_past_the_limit_is_refused_before_it_is_read(
-    settings: Any,
-    engine: Engine,
-    admin_key: str,
-    done: dict[str, Any],
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """Drawing or localising a million detections took the API minutes of CPU and gigabytes; past
-    ROADLINK_MAX_VIEW_DETECTIONS the views say so at once, without reading the result."""
-    from roadlink.api import create_app
-
-    def never(*_args: object, **_kwargs: object) -> None:
-        raise AssertionError("the result was read")
-
-    monkeypatch.setattr(repository, "load_job_association", never)
-    job = done["job"]["id"]  # 100 detections
-    small = settings.model_copy(update={"max_view_detections": 99})
-    with TestClient(create_app(small, engine=engine), headers=bearer(admin_key)) as http:
-        for path, params in [
-            ("plot", {}),
-            ("plot", {"format": "svg", "kind": "backprojected"}),
-            ("positions", {"t": 10}),
-            ("targets/T1", {}),
-        ]:
-            problem = assert_problem(http.get(f"/v1/jobs/{job}/{path}", params=params), 413)
-            assert "ROADLINK_MAX_VIEW_DETECTIONS" in problem["detail"]
-            assert f"/v1/jobs/{job}/result" in problem["detail"]
-        page = http.get(f"/jobs/{job}")
-        assert page.status_code == 200 and 'id="too-large"' in page.text
-        assert "100 detections" in page.text and 'id="plot"' not in page.text
-        assert http.get(f"/v1/jobs/{job}/result").status_code == 200  # read whole, as stored

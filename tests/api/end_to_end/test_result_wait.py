@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 from roadlink.association.associators import ASSOCIATORS
 from roadlink.queue.worker import Worker
 from roadlink.services import waiting
+from tests.helpers import post_csv_batch
 from tests.queue.associators_for_tests import SleepingAssociator
 
 # With polling this slow, only a notification can end the wait before the job's 60 s timeout.
@@ -27,14 +28,7 @@ def notifications_only(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def _post(client: TestClient, deployment: dict[str, Any], paper_csv: str, **params: str) -> Any:
-    response = client.post(
-        f"/v1/deployments/{deployment['id']}/batches",
-        content=paper_csv,
-        headers={"content-type": "text/csv"},
-        params=params,
-    )
-    assert response.status_code == 201, response.text
-    return response.json()["job"]["id"]
+    return post_csv_batch(client, deployment["id"], paper_csv, **params)["job"]["id"]
 
 
 def test_a_waiting_request_is_woken_when_its_job_succeeds(

@@ -24,7 +24,7 @@ from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 
 pytestmark = pytest.mark.slow
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 MAX_BODY_BYTES = 100_000
 
 

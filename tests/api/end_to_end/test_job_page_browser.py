@@ -21,7 +21,7 @@ from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
 pytestmark = pytest.mark.slow
 
 CHROMIUM = Path("/usr/bin/chromium")
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 ARTIFACT = REPO / "artifacts" / "job-page.png"
 # Headless, sandboxless (containers run as root), and quiet: no network beyond the page.
 CHROMIUM_FLAGS = (

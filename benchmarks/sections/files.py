@@ -1,0 +1,250 @@
+"""Files: reading a detection CSV, writing a result, and `roadlink associate` end to end, each
+as a ratio against a reference measured in the same run (issue 19).
+
+- CSV in: `read_detections_csv` (parse and validate, the CLI's and `text/csv` ingest's reader)
+  beside polars' `read_csv` of the same file, interleaved; goal: at least half its speed. Peak
+  memory of the read, in a process of its own, above that process's baseline, against the
+  bytes of the arrays it produces (the columns and their strings); goal at most 3x.
+- Out: the CLI's `--json` (`result_json_text`), the service's stored JSON
+  (`orjson.dumps(result.to_dict())`) and the matrix (`to_matrix_csv`) of an `assignment`
+  result, against that association's time; goal at most 10 % each.
+- CLI: `roadlink associate FILE --json` in a subprocess, beside the in-process association of
+  the same detections, interleaved; goal at most 1.15, and a peak of at most 1 GiB.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import orjson
+import polars as pl
+
+from benchmarks.datasets import cached_dataset, load_detections, scaled_config, targets_for
+from benchmarks.report import Column, Sample, Section, Table
+from roadlink.association import AssociationResult, associate
+from roadlink.association.associators import DEFAULT_ASSOCIATOR
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.association.result_text import result_json_text
+
+NAME = "files"
+GOAL_READ_SPEED = 0.5
+GOAL_READ_MEMORY = 3.0
+GOAL_WRITE_SHARE = 0.10
+GOAL_CLI_RATIO = 1.15
+GOAL_CLI_PEAK_MIB = 1024
+
+
+@dataclass(frozen=True)
+class FilesPlan:
+    """Detections in the file and repeats of each measurement."""
+
+    detections: int
+    repeats: int
+
+
+FULL = FilesPlan(detections=1_000_000, repeats=3)
+QUICK = FilesPlan(detections=100_000, repeats=3)
+
+
+def timed(action: Callable[[], object]) -> float:
+    start = time.perf_counter()
+    action()
+    return time.perf_counter() - start
+
+
+def read_memory(path: Path) -> dict[str, float]:
+    """Peak memory of reading `path`, in a child process: MiB above its baseline (after its
+    imports and the file's bytes), and the MiB of the arrays the read produced."""
+    script = (
+        "import json, sys; from pathlib import Path;"
+        "from benchmarks.sections.files import measure_read_memory;"
+        "print(json.dumps(measure_read_memory(Path(sys.argv[1]))))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", script, str(path)],
+        check=True,
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parents[2],
+    )
+    return dict(json.loads(out.stdout))
+
+
+def measure_read_memory(path: Path) -> dict[str, float]:
+    """Run in the child of `read_memory`."""
+    from benchmarks.isolated import peak_rss_kib
+
+    data = path.read_bytes()
+    baseline = _current_rss_kib()
+    detections = read_detections_csv(data)
+    peak = peak_rss_kib() or 0
+    produced = 0
+    for name in ("position", "velocity", "timestamp", "lane", "length"):
+        produced += getattr(detections, name).nbytes
+    for name in ("sensor_id", "detection_id", "target", "vehicle_class"):
+        column = getattr(detections, name)
+        produced += column.nbytes
+        produced += sum(sys.getsizeof(v) for v in {id(v): v for v in column.tolist()}.values())
+    return {"above_baseline_mib": (peak - baseline) / 1024, "arrays_mib": produced / 2**20}
+
+
+def _current_rss_kib() -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return 0
+
+
+def cli_run(path: Path) -> tuple[float, float]:
+    """Seconds and peak MiB of `roadlink associate FILE --json`, its output discarded."""
+    command = [sys.executable, "-m", "roadlink.cli", "associate", str(path), "--json"]
+    start = time.perf_counter()
+    with open(os.devnull, "wb") as sink:
+        process = subprocess.Popen(command, stdout=sink)
+        _, status, usage = os.wait4(process.pid, 0)
+    elapsed = time.perf_counter() - start
+    if status != 0:
+        raise RuntimeError(f"{command} exited with {status}")
+    return elapsed, usage.ru_maxrss / 1024
+
+
+def run(quick: bool) -> Section:
+    """The files section (see the module docstring)."""
+    plan = QUICK if quick else FULL
+    detections = load_detections(cached_dataset(scaled_config(targets_for(plan.detections))))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "detections.csv"
+        path.write_text(write_detections_csv(detections))
+        read = _read_table(path, plan)
+        write, cli = _write_and_cli_tables(path, plan)
+    return Section(
+        NAME,
+        f"A {plan.detections:,}-detection CSV (the scaling data of `associators`): reading "
+        "it, writing its result, and the CLI end to end, each beside its reference in the same "
+        f"run. Median [min, max] of {plan.repeats} interleaved repeats.",
+        tables=[read, write, cli],
+        settings={"detections": plan.detections, "repeats": plan.repeats},
+    )
+
+
+def _read_table(path: Path, plan: FilesPlan) -> Table:
+    ours: list[float] = []
+    theirs: list[float] = []
+    for _ in range(plan.repeats + 1):
+        theirs.append(timed(lambda: pl.read_csv(path)))
+        ours.append(timed(lambda: read_detections_csv(path.read_bytes())))
+    ours, theirs = ours[1:], theirs[1:]  # the first of each is a warm-up
+    speed = Sample.of(theirs).median / Sample.of(ours).median
+    memory = read_memory(path)
+    memory_ratio = memory["above_baseline_mib"] / memory["arrays_mib"]
+    table = Table(
+        "CSV in: read_detections_csv beside polars.read_csv",
+        [
+            Column("detections", "count"),
+            Column("polars.read_csv", "seconds"),
+            Column("read_detections_csv", "seconds"),
+            Column("speed / polars"),
+            Column("goal >= 0.5"),
+            Column("peak above baseline", "mib"),
+            Column("arrays produced", "mib"),
+            Column("peak / arrays"),
+            Column("goal <= 3"),
+        ],
+    )
+    table.add(
+        plan.detections,
+        Sample.of(theirs),
+        Sample.of(ours),
+        f"{speed:.2f}",
+        _met(speed >= GOAL_READ_SPEED),
+        memory["above_baseline_mib"],
+        memory["arrays_mib"],
+        f"{memory_ratio:.2f}",
+        _met(memory_ratio <= GOAL_READ_MEMORY),
+    )
+    table.notes.append(
+        "- Both read the file from disk; ours parses and validates into `Detections` (polars "
+        "only parses, inferring types). Peak memory: the read in a child process, VmHWM above "
+        "its VmRSS once the file's bytes are loaded; arrays: the columns and their strings."
+    )
+    return table
+
+
+def _write_and_cli_tables(path: Path, plan: FilesPlan) -> tuple[Table, Table]:
+    detections = read_detections_csv(path.read_bytes())
+    association: list[float] = []
+    cli: list[float] = []
+    peaks: list[float] = []
+    writers: dict[str, Callable[[AssociationResult], object]] = {
+        "CLI --json (result_json_text)": result_json_text,
+        "service JSON (orjson of to_dict)": lambda r: orjson.dumps(r.to_dict()),
+        "matrix CSV (to_matrix_csv)": lambda r: r.to_matrix_csv(),
+    }
+    writes: dict[str, list[float]] = {name: [] for name in writers}
+    for _ in range(plan.repeats):
+        start = time.perf_counter()
+        result = associate(detections, DEFAULT_ASSOCIATOR, {})
+        association.append(time.perf_counter() - start)
+        for name, write in writers.items():
+            start = time.perf_counter()
+            write(result)
+            writes[name].append(time.perf_counter() - start)
+        seconds, peak = cli_run(path)
+        cli.append(seconds)
+        peaks.append(peak)
+    reference = Sample.of(association)
+    write_table = Table(
+        f"Out: writing a {plan.detections:,}-detection result / its association",
+        [
+            Column("writer"),
+            Column("seconds", "seconds"),
+            Column(f"{DEFAULT_ASSOCIATOR} association", "seconds"),
+            Column("share"),
+            Column("goal <= 10 %"),
+        ],
+    )
+    for name, runs in writes.items():
+        share = Sample.of(runs).median / reference.median
+        write_table.add(
+            name, Sample.of(runs), reference, f"{share:.1%}", _met(share <= GOAL_WRITE_SHARE)
+        )
+    ratio = Sample.of(cli).median / reference.median
+    peak = max(peaks)
+    cli_table = Table(
+        "CLI: `roadlink associate FILE --json` / in-process association",
+        [
+            Column("detections", "count"),
+            Column("CLI end to end", "seconds"),
+            Column("in-process association", "seconds"),
+            Column("ratio"),
+            Column("goal <= 1.15"),
+            Column("CLI peak", "mib"),
+            Column("goal <= 1 GiB"),
+        ],
+    )
+    cli_table.add(
+        plan.detections,
+        Sample.of(cli),
+        reference,
+        f"{ratio:.2f}",
+        _met(ratio <= GOAL_CLI_RATIO),
+        peak,
+        _met(peak <= GOAL_CLI_PEAK_MIB),
+    )
+    cli_table.notes.append(
+        "- The CLI in a subprocess (Python's start and imports included), its output to "
+        "/dev/null; its peak is the child's maximum resident set (wait4)."
+    )
+    return write_table, cli_table
+
+
+def _met(ok: bool) -> str:
+    return "met" if ok else "missed"

@@ -1,0 +1,100 @@
+"""Confirmation (`assignment/confirmation.py`): which tracks are targets. False alarms, alone or
+chained by loose links, are left out; a track the batch's time window cut short is kept."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.confirmation import (
+    confirm_targets,
+    ends_explained,
+    starts_explained,
+    track_evidence,
+)
+from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.detections import Detections, concatenate
+from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
+
+PARAMS = AssignmentParams()
+ROAD = [0.0, 100.0, 200.0, 300.0, 400.0]
+
+
+def road_with(extra: Detections) -> Detections:
+    """Two vehicles past every sensor (rows 0-9; V0 at 20 m/s from t = 0, V1 at 25 m/s from
+    t = 10, so the batch spans 0-26 s), then `extra`'s rows."""
+    return concatenate([steady_vehicles([0.0, 10.0], [20.0, 25.0], ROAD), extra])
+
+
+def confirmed(d: Detections, track: np.ndarray, params: AssignmentParams = PARAMS) -> list[int]:
+    s = arrange(d, params)
+    return confirm_targets(s, kinematic_model(s.positions.size, params), params, track).tolist()
+
+
+VEHICLES = [0, 1] * 5
+
+
+def test_a_lone_report_in_the_middle_of_road_and_batch_is_a_false_alarm():
+    d = road_with(Detections.from_columns([200.0], [22.0], [12.0]))
+    assert confirmed(d, np.array([*VEHICLES, 2])) == [*VEHICLES, -1]
+
+
+def test_a_lone_report_the_window_cut_is_a_target():
+    # At the first sensor 0.5 s before the batch ends (it cannot reach the next one inside it),
+    # and at the last sensor 0.5 s after it began (it passed the one before earlier): targets.
+    d = road_with(Detections.from_columns([0.0, 400.0], [20.0, 20.0], [25.5, 0.5]))
+    assert confirmed(d, np.array([*VEHICLES, 2, 3])) == [*VEHICLES, 2, 3]
+    # The same reports in the middle of the batch would have been seen again: false alarms.
+    d = road_with(Detections.from_columns([0.0, 400.0], [20.0, 20.0], [10.5, 13.0]))
+    assert confirmed(d, np.array([*VEHICLES, 2, 3])) == [*VEHICLES, -1, -1]
+
+
+def test_false_alarms_chained_by_a_loose_link_are_left_out_and_a_tight_pair_is_kept():
+    # Two reports 100 m apart at 20 m/s: 5 s is the kinematic travel time. 6.8 s is 3.6 spreads
+    # late: the link is within the gate but saves less than min_track_evidence.
+    loose = road_with(Detections.from_columns([100.0, 200.0], [20.0, 20.0], [3.0, 9.8]))
+    assert confirmed(loose, np.array([*VEHICLES, 2, 2])) == [*VEHICLES, -1, -1]
+    tight = road_with(Detections.from_columns([100.0, 200.0], [20.0, 20.0], [3.0, 8.0]))
+    assert confirmed(tight, np.array([*VEHICLES, 2, 2])) == [*VEHICLES, 2, 2]
+    # A target must also be long enough, unless the window explains it.
+    assert confirmed(tight, np.array([*VEHICLES, 2, 2]), AssignmentParams(min_track_length=3)) == [
+        *VEHICLES,
+        -1,
+        -1,
+    ]
+
+
+def test_targets_are_numbered_from_zero_in_track_order():
+    d = road_with(Detections.from_columns([200.0], [22.0], [12.0]))
+    track = np.array([7, 4] * 5 + [5])
+    assert confirmed(d, track) == [1, 0] * 5 + [-1]
+    assert confirmed(d, np.full(11, -1)) == [-1] * 11
+
+
+def test_evidence_is_what_the_links_save_over_leaving_their_detections_apart():
+    d = road_with(Detections.from_columns([100.0, 200.0], [20.0, 20.0], [3.0, 9.8]))
+    s = arrange(d, PARAMS)
+    model = kinematic_model(5, PARAMS)
+    track = np.array([*VEHICLES, 2, 2])
+    chain = np.flatnonzero(track >= 0)
+    chain = chain[np.lexsort((s.sensor[chain], track[chain]))]
+    evidence = track_evidence(s, model, PARAMS, chain, track[chain])
+    # The vehicles' links are exact in time and speed: each of the four saves nearly the whole
+    # gate cost (the pace term sees speeds relative to each sensor's median, which the extra
+    # reports move a little).
+    assert evidence[:2] == pytest.approx([4 * PARAMS.gate_cost] * 2, rel=0.01)
+    # The loose link saves something, less than a target needs.
+    assert 0.0 < evidence[2] < PARAMS.min_track_evidence
+
+
+def test_a_track_start_and_end_are_explained_by_the_road_or_the_window():
+    d = road_with(Detections.from_columns([], [], []))
+    s = arrange(d, PARAMS)
+    model = kinematic_model(5, PARAMS)
+    # V0's first detection is at the first sensor; V1's (row 5, at 200 m, t = 18) is not, and
+    # the batch began 18 s earlier, time to pass the sensor before.
+    assert starts_explained(s, model, np.array([0, 5])).tolist() == [True, False]
+    # V0's detection at 400 m is at the last sensor; V1's at 300 m (t = 22) would reach 400 m
+    # after the batch ends (26 s); V0's at 100 m (t = 5) would not.
+    assert ends_explained(s, model, np.array([8, 7, 2])).tolist() == [True, True, False]

@@ -1,0 +1,110 @@
+"""Gating (`assignment/gating.py`): which candidate links a gate in time lets through, and what
+their cost needs (the standardised travel-time error, the speed change, the span)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from roadlink.association.associators.assignment import AssignmentParams, Tails
+from roadlink.association.associators.assignment.gating import Pairs, gated_pairs, time_residual
+from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.detections import Detections
+from tests.association.associators.assignment.roads import kinematic_model
+
+PARAMS = AssignmentParams()
+
+
+def one_departure(arrivals: list[float], speed: float = 20.0) -> Detections:
+    """Row 0: a vehicle at 20 m/s passes the sensor at 0 m at t = 0; rows 1...: reports at the
+    sensor 100 m on, at `arrivals` (the vehicle's own arrives at t = 5), all at `speed`."""
+    return Detections.from_columns(
+        position=[0.0] + [100.0] * len(arrivals),
+        velocity=[20.0] + [speed] * len(arrivals),
+        timestamp=[0.0, *arrivals],
+    )
+
+
+def gated(d: Detections, gate: float = PARAMS.gate_cost, tails: Tails | None = None) -> Pairs:
+    s = arrange(d, PARAMS)
+    model = kinematic_model(s.positions.size, PARAMS, **({} if tails is None else {"tails": tails}))
+    return gated_pairs(s, model, PARAMS, np.array([0]), 1, gate)
+
+
+def test_the_gate_keeps_the_links_inside_its_window_and_rejects_those_outside():
+    # Arrivals 5 s (on time), 5.3 s (0.6 spreads late), 9 s (8 spreads late: 64 > 18) and 50 s.
+    pairs = gated(one_departure([5.0, 5.3, 9.0, 50.0]))
+    assert sorted(pairs.b.tolist()) == [1, 2]
+    assert pairs.a.tolist() == [0, 0] and pairs.span.tolist() == [1, 1]
+    on_time = pairs.r_time[pairs.b == 1][0]
+    late = pairs.r_time[pairs.b == 2][0]
+    assert on_time == pytest.approx(0.0, abs=1e-12) and 0.0 < late < 1.0
+
+
+def test_the_gated_pairs_carry_what_the_same_links_cost_between_any_sensors():
+    d = one_departure([4.8, 5.0, 5.3])
+    s = arrange(d, PARAMS)
+    model = kinematic_model(2, PARAMS)
+    pairs = gated_pairs(s, model, PARAMS, np.array([0]), 1, PARAMS.gate_cost)
+    direct = Pairs.between(s, model, PARAMS, pairs.a, pairs.b)
+    for name in ("r_time", "ratio", "speed_spread", "span"):
+        np.testing.assert_allclose(getattr(pairs, name), getattr(direct, name), rtol=1e-12)
+
+
+def test_heavy_tails_widen_the_gate_but_no_link_outruns_the_fastest_speed_measured():
+    # In heavy tails a travel time 8 spreads off is within the gate; the report 0.5 s after
+    # departure is not, however cheap its residual: 100 m in 0.5 s is 200 m/s, past 1.5 times
+    # the fastest speed (20 m/s) either sensor measured.
+    heavy = Tails(0.5, 30.0)
+    assert heavy.cost(np.array([-9.0]))[0] < PARAMS.gate_cost
+    pairs = gated(one_departure([0.5, 5.0, 9.0]), tails=heavy)
+    assert sorted(pairs.b.tolist()) == [2, 3]
+
+
+def test_a_link_over_a_missed_sensor_pays_the_miss_cost_within_the_gate():
+    # A vehicle at 20 m/s seen at 0 m and at 200 m (t = 10), not at 100 m.
+    d = Detections.from_columns([0.0, 100.0, 200.0], [20.0, 20.0, 20.0], [0.0, 50.0, 10.0])
+    s = arrange(d, PARAMS)
+    model = kinematic_model(3, PARAMS)
+    skip = PARAMS.miss_cost  # the link's whole cost: its residuals are 0
+    assert gated_pairs(s, model, PARAMS, np.array([0]), 2, skip).b.size == 0
+    kept = gated_pairs(s, model, PARAMS, np.array([0]), 2, skip + 0.01)
+    assert kept.b.tolist() == [2] and kept.span.tolist() == [2]
+
+
+def test_nothing_to_link_from_or_to_gates_nothing():
+    d = one_departure([5.0])
+    s = arrange(d, PARAMS)
+    model = kinematic_model(2, PARAMS)
+    empty = np.zeros(0, dtype=np.int64)
+    assert gated_pairs(s, model, PARAMS, empty, 1, PARAMS.gate_cost).a.size == 0
+    # A departure after every arrival at the next sensor links to none of them.
+    late = Detections.from_columns([0.0, 100.0], [20.0, 20.0], [100.0, 5.0])
+    s = arrange(late, PARAMS)
+    assert gated_pairs(s, model, PARAMS, np.array([0]), 1, PARAMS.gate_cost).a.size == 0
+
+
+def test_the_time_residual_is_standardised_and_widened_by_an_unexplained_speed_change():
+    params = AssignmentParams(travel_time_spread=0.1, timestamp_noise=0.0)
+    predicted, spread = np.array([10.0]), np.array([0.1])
+    on_time, _ = time_residual(params, predicted, np.array([10.0]), np.array([0.0]), spread)
+    late, ratio = time_residual(params, predicted, np.array([11.0]), np.array([0.0]), spread)
+    assert on_time[0] == 0.0 and late[0] == pytest.approx(1.0) and ratio[0] == 0.0
+    # The same second late, when the speed changed by log 0.5 somewhere on the way: less sure.
+    changed, _ = time_residual(params, predicted, np.array([11.0]), np.array([0.5]), spread)
+    assert 0.0 < changed[0] < late[0]
+    # The clocks' noise adds to every spread, however short the travel time.
+    noisy = AssignmentParams(timestamp_noise=0.5)
+    tiny, _ = time_residual(noisy, np.array([0.01]), np.array([1.01]), np.zeros(1), spread)
+    assert tiny[0] == pytest.approx(1.0 / np.sqrt(0.001**2 + 2 * 0.5**2))
+
+
+def test_pairs_are_taken_and_concatenated_field_by_field():
+    d = one_departure([5.0, 5.3])
+    s = arrange(d, PARAMS)
+    pairs = Pairs.between(s, kinematic_model(2, PARAMS), PARAMS, np.array([0, 0]), np.array([1, 2]))
+    second = pairs.take(np.array([False, True]))
+    assert second.b.tolist() == [2] and second.r_time[0] == pairs.r_time[1]
+    both = Pairs.concatenate([second, pairs.take(np.array([True, False]))])
+    assert both.b.tolist() == [2, 1] and both.span.tolist() == [1, 1]
+    assert Pairs.none().a.size == Pairs.none().r_time.size == 0

@@ -1,0 +1,101 @@
+"""The prior (`assignment/prior.py`): what the detections say about every segment before any of
+them is linked: a travel-time bias where the pairs pile up, the kinematic prediction where they
+do not, and sums of the segments' travel times over missed sensors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.prior import (
+    PRIOR_BINS,
+    bin_counts,
+    segment_prior,
+)
+from roadlink.association.associators.assignment.sensors import KINEMATIC_SKEW, arrange
+from roadlink.association.detections import Detections
+
+PARAMS = AssignmentParams()
+SLOW = 1.5  # the slow zone's travel time over the kinematic one
+
+
+def slow_zone(seed: int, n: int = 200) -> Detections:
+    """`n` vehicles, 2 s apart on average at 20-35 m/s of their own, past sensors at 0, 200,
+    400 and 500 m; the first segment takes them SLOW times the kinematic travel time (a slow
+    zone between two sensors), the others exactly it; speeds are measured to 1 %."""
+    rng = np.random.default_rng(seed)
+    start = np.cumsum(rng.exponential(2.0, n))
+    v = rng.uniform(20.0, 35.0, n)
+    first = start + SLOW * 200.0 / v
+    times = [start, first, first + 200.0 / v, first + 300.0 / v]
+    return Detections.from_columns(
+        np.repeat([0.0, 200.0, 400.0, 500.0], n),
+        np.tile(v, 4) * np.exp(0.01 * rng.standard_normal(4 * n)),
+        np.concatenate(times),
+    )
+
+
+def test_a_slow_zone_shows_before_anything_is_linked_and_the_other_segments_stay_kinematic():
+    model = segment_prior(arrange(slow_zone(0), PARAMS), 3, PARAMS)
+    bias = np.exp(model.log_bias)
+    assert bias[0, 1] == pytest.approx(SLOW, rel=0.02)
+    assert bias[1, 1] == pytest.approx(1.0, abs=0.01) and bias[2, 1] == 1.0
+    # Over a missed sensor the typical travel times add up: (1.5 * 200 + 200) m / 400 m, and
+    # 1.5 * 200 + 300 over 500 m.
+    assert bias[0, 2] == pytest.approx(500.0 / 400.0, rel=0.02)
+    assert bias[0, 3] == pytest.approx(600.0 / 500.0, rel=0.02)
+    assert bias[1, 2] == pytest.approx(1.0, abs=0.01)
+
+
+def test_unrelated_arrivals_leave_the_kinematic_prediction():
+    # Two sensors each seeing its own traffic: no pair is one vehicle, so no bias is believed.
+    rng = np.random.default_rng(1)
+    n = 200
+    d = Detections.from_columns(
+        np.repeat([0.0, 200.0], n),
+        rng.uniform(20.0, 35.0, 2 * n),
+        np.concatenate([np.sort(rng.uniform(0, 400, n)), np.sort(rng.uniform(0, 400, n))]),
+    )
+    assert np.all(segment_prior(arrange(d, PARAMS), 3, PARAMS).log_bias == 0.0)
+
+
+def test_a_handful_of_targets_takes_its_mode_as_it_is():
+    # Three vehicles taking twice the kinematic time: too few for a significance test, so the
+    # mode stands as long as it stands above the background.
+    speeds = np.array([20.0, 25.0, 30.0])
+    starts = np.array([0.0, 5.0, 10.0])
+    d = Detections.from_columns(
+        np.repeat([0.0, 100.0], 3),
+        np.tile(speeds, 2),
+        np.concatenate([starts, starts + 2.0 * 100.0 / speeds]),
+    )
+    model = segment_prior(arrange(d, PARAMS), 3, PARAMS)
+    assert model.log_bias[0, 1] == pytest.approx(np.log(2.0), abs=PRIOR_BINS[1] - PRIOR_BINS[0])
+
+
+def test_the_other_terms_start_from_the_sensors_and_the_parameters():
+    d = slow_zone(2, n=60)
+    s = arrange(d, PARAMS)
+    model = segment_prior(s, 3, PARAMS)
+    assert model.log_bias.shape == (4, 4) and model.max_span == 3
+    medians = s.median_speed
+    assert model.log_speed_ratio[0, 2] == pytest.approx(np.log(medians[2] / medians[0]))
+    assert model.log_speed_ratio[3, 1] == 0.0  # no segment after the last sensor
+    assert np.all(model.skew == KINEMATIC_SKEW)
+    assert np.all(model.time_spread == PARAMS.travel_time_spread)
+    # A speed changes more over more sensors: the spread grows as the square root of the span.
+    np.testing.assert_allclose(
+        model.speed_spread[0], PARAMS.velocity_change_spread * np.sqrt([1, 1, 2, 3])
+    )
+    assert model.features is None  # these detectors report no lane, length or class
+
+
+def test_bins_count_as_numpy_does_and_ignore_values_out_of_range():
+    rng = np.random.default_rng(3)
+    values = rng.uniform(PRIOR_BINS[0], PRIOR_BINS[-1], 1000)
+    expected, _ = np.histogram(values, PRIOR_BINS)
+    np.testing.assert_array_equal(bin_counts(values), expected)
+    outside = np.array([PRIOR_BINS[0] - 1.0, PRIOR_BINS[-1] + 1.0])
+    assert bin_counts(outside).sum() == 0
+    assert bin_counts(np.array([PRIOR_BINS[-1]]))[-1] == 1  # the last bin is closed

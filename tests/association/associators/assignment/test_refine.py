@@ -1,0 +1,69 @@
+"""Re-pairing with hindsight (`assignment/refine.py`): at every sensor boundary track prefixes are
+matched to suffixes again, which undoes a swap, joins fragments, keeps right tracks as they are,
+and judges every link it keeps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.refine import refine_boundaries, suffix_sums
+from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.associators.assignment.tracks import successors
+from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
+
+PARAMS = AssignmentParams()
+ROAD = [0.0, 100.0, 200.0, 300.0, 400.0]
+# V0 at 20 m/s from t = 0 and V1 at 30 m/s from t = 1.5: V1 overtakes V0 just before 100 m.
+# Rows are sensor by sensor, V0 then V1: V0 is rows 0, 2, 4, 6, 8.
+TRUTH = np.array([0, 1] * 5)
+
+
+def refined(track: np.ndarray, **kwargs: object) -> list[int]:
+    d = steady_vehicles([0.0, 1.5], [20.0, 30.0], ROAD)
+    s = arrange(d, PARAMS)
+    model = kinematic_model(len(ROAD), PARAMS)
+    return refine_boundaries(s, model, PARAMS, track.copy(), **kwargs).tolist()  # type: ignore[arg-type]
+
+
+def test_right_tracks_are_kept_as_they_are():
+    assert refined(TRUTH) == TRUTH.tolist()
+
+
+def test_a_swap_between_two_targets_is_undone():
+    swapped = TRUTH.copy()
+    swapped[6:] = 1 - swapped[6:]  # from 300 m on, each track follows the other vehicle
+    assert refined(swapped) == TRUTH.tolist()
+
+
+def test_fragments_of_one_target_are_joined():
+    fragments = TRUTH.copy()
+    fragments[[4, 6, 8]] = 2  # V0 from 200 m on, a track of its own
+    assert refined(fragments) == TRUTH.tolist()
+
+
+def test_the_links_kept_are_judged_and_without_relinking_the_wrong_one_is_judged_wrong():
+    confidence = np.full(TRUTH.size, np.nan)
+    refined(TRUTH, confidence=confidence)
+    assert np.isnan(confidence[:2]).all()  # a track's first detection has no link into it
+    assert confidence[2:] == pytest.approx(np.ones(8), abs=1e-3)
+
+    swapped = TRUTH.copy()
+    swapped[6:] = 1 - swapped[6:]
+    judged = np.full(TRUTH.size, np.nan)
+    assert refined(swapped, confidence=judged, relink=False) == swapped.tolist()
+    # V0's link from 200 m into V1's detection at 300 m is surely wrong; V1's link into V0's
+    # is too far off in time to be a candidate at all, so it is not judged.
+    assert judged[6] < 1e-3 and np.isnan(judged[7])
+    assert judged[2:6] == pytest.approx(np.ones(4), abs=1e-3)
+
+
+def test_suffix_sums_run_from_each_detection_to_its_tracks_end():
+    d = steady_vehicles([0.0, 1.5], [20.0, 30.0], ROAD)
+    s = arrange(d, PARAMS)
+    nxt, _ = successors(s, TRUTH)
+    total, count = suffix_sums(s, nxt, np.arange(10.0), np.ones(10))
+    # V0's rows are 0, 2, 4, 6, 8: from row 4 on, 4 + 6 + 8 over three detections.
+    assert total[[0, 4, 8]].tolist() == [20.0, 18.0, 8.0]
+    assert count[[0, 4, 8]].tolist() == [5.0, 3.0, 1.0]

@@ -1,0 +1,53 @@
+"""The fast writers of a result write exactly what the plain ones wrote: `json.dumps(document,
+indent=2)` for the CLI's --json, and the cell-by-cell matrix."""
+
+import dataclasses
+import json
+import re
+
+import numpy as np
+import pytest
+
+from roadlink.association import associate, result_text
+from roadlink.association.result import build_result
+from roadlink.association.result_text import result_json_text
+from roadlink.simulation import preset, simulate
+
+
+def results():
+    featured = preset("medium", lanes=3, vehicle_lengths=True, vehicle_classes=True)
+    faulty = preset("small", miss_probability=0.1, false_alarm_rate=0.1, duplicate_probability=0.05)
+    out = [
+        associate(simulate(preset("large"), seed=2).detections, "assignment", {}),
+        associate(simulate(faulty, seed=2).detections, "assignment", {}),
+        associate(simulate(featured, seed=2).detections, "assignment", {}),
+        associate(simulate(featured, seed=2).detections, "kmeans", {}),  # cells of several
+    ]
+    d = simulate(preset("large"), seed=3).detections
+    n = len(d)
+    tiny = dataclasses.replace(d, velocity=d.velocity * 1e-7, timestamp=d.timestamp * 1e-9)
+    groups = np.where(np.arange(n) % 3 == 0, -1, np.arange(n) % 7)
+    small_links = np.where(np.arange(n) % 4 == 0, np.nan, 1e-5)
+    out += [
+        build_result(tiny, np.arange(n) % 7, "x", {"p": 1e-6}, link_confidence=np.full(n, 1e-3)),
+        build_result(d, groups, "x", {"p": [1e-6, 2]}, link_confidence=small_links),
+        build_result(d, groups, "x", {"q": "\u00e9"}, link_confidence=small_links),
+    ]
+    return out
+
+
+@pytest.mark.parametrize("result", results())
+def test_the_cli_json_is_json_dumps_byte_for_byte(result):
+    assert result_json_text(result) == json.dumps(result.to_dict(), indent=2) + "\n"
+
+
+@pytest.mark.parametrize("result", results())
+def test_the_matrix_placed_by_numpy_is_the_matrix_written_cell_by_cell(result, monkeypatch):
+    fast = result.to_matrix_csv()
+    monkeypatch.setattr(result_text, "_NEEDS_QUOTES", re.compile(r"|"))  # always cell by cell
+    assert fast == result.to_matrix_csv()
+
+
+def test_float_texts_are_repr():
+    values = np.array([0.0, -0.0, 1e-5, 1.5e-7, 0.1, 1 / 3, 1e16, 123.0, np.inf, np.nan])
+    assert result_text.float_texts(values) == [repr(v) for v in values.tolist()]

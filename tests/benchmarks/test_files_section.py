@@ -1,0 +1,22 @@
+"""The files section's machinery on a tiny file: every table has its row, the CLI runs, and the
+memory child reports. Never asserts speed: benchmarks/ reports timings."""
+
+import pytest
+
+from benchmarks import datasets
+from benchmarks.sections import files
+
+
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setattr(datasets, "CACHE", tmp_path / "cache")
+
+
+@pytest.mark.slow
+def test_the_files_section_reads_writes_and_runs_the_cli_beside_its_references(monkeypatch):
+    monkeypatch.setattr(files, "QUICK", files.FilesPlan(detections=1_000, repeats=2))
+    section = files.run(quick=True).to_dict()
+    read, write, cli = section["tables"]
+    assert len(read["rows"]) == 1 and len(cli["rows"]) == 1
+    assert len(write["rows"]) == 3
+    assert section["settings"] == {"detections": 1_000, "repeats": 2}

@@ -1,0 +1,63 @@
+"""Worker heartbeat files (`queue/liveness.py`), which `roadlink worker --check` reads: a worker
+touches its own file at most once per interval, removes it when it stops, and a file counts as a
+live worker only while it is fresher than a lease. (The check against a running worker:
+tests/cli/test_server.py.)"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+from roadlink.queue.liveness import HeartbeatFile, live_workers
+
+
+def age(path: Path, seconds: float) -> None:
+    """Make the file look last touched `seconds` ago."""
+    then = time.time() - seconds
+    os.utime(path, (then, then))
+
+
+def test_a_beat_touches_the_workers_own_file_at_most_once_per_interval(tmp_path: Path) -> None:
+    beats = HeartbeatFile(str(tmp_path / "made" / "on demand"), interval=3600.0)
+    assert beats.path.name == f"worker-{os.getpid()}"
+    beats.beat()
+    assert beats.path.is_file()
+    age(beats.path, 100.0)
+    beats.beat()  # within the interval: not touched again
+    assert time.time() - beats.path.stat().st_mtime >= 99.0
+    every_time = HeartbeatFile(str(tmp_path / "made" / "on demand"), interval=0.0)
+    every_time.beat()
+    assert time.time() - every_time.path.stat().st_mtime < 99.0
+
+
+def test_a_worker_that_stops_removes_its_file(tmp_path: Path) -> None:
+    beats = HeartbeatFile(str(tmp_path), interval=0.0)
+    beats.beat()
+    beats.remove()
+    assert not beats.path.exists()
+    beats.remove()  # gone already: fine
+
+
+def test_a_file_that_cannot_be_written_is_a_warning_not_a_failure(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    blocker = tmp_path / "a file"
+    blocker.write_text("")
+    beats = HeartbeatFile(str(blocker / "heartbeats"), interval=0.0)
+    with caplog.at_level(logging.WARNING, logger="roadlink.queue.liveness"):
+        beats.beat()
+    assert "cannot touch the heartbeat file" in caplog.text
+
+
+def test_live_workers_are_the_files_fresher_than_the_limit(tmp_path: Path) -> None:
+    for name, seconds in (("worker-1", 1.0), ("worker-2", 50.0), ("worker-3", 5.0)):
+        (tmp_path / name).touch()
+        age(tmp_path / name, seconds)
+    (tmp_path / "not-a-worker").touch()
+    assert live_workers(str(tmp_path), within_seconds=10.0) == ["worker-1", "worker-3"]
+    assert live_workers(str(tmp_path), within_seconds=100.0) == ["worker-1", "worker-2", "worker-3"]
+    assert live_workers(str(tmp_path / "none yet"), within_seconds=10.0) == []
