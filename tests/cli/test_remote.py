@@ -3,53 +3,20 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
-from pathlib import Path
-from typing import NamedTuple
 
 import httpx
 import pytest
 from typer.testing import CliRunner
 
 from roadlink.association import associate
-from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.association.csvio import read_detections_csv
 from roadlink.cli import app
-from roadlink.simulation import preset, simulate
-from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
+from tests.cli.conftest import Served
+from tests.live_server import free_port
 
 pytestmark = pytest.mark.slow
 
 runner = CliRunner()
-
-
-class Served(NamedTuple):
-    url: str
-    key: str
-    deployment: str
-    csv: Path
-
-    @property
-    def env(self) -> dict[str, str]:
-        return {"ROADLINK_URL": self.url, "ROADLINK_KEY": self.key}
-
-
-@pytest.fixture(scope="module")
-def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
-    """`roadlink serve --workers 1`, an admin key, a deployment and a labelled CSV."""
-    directory = tmp_path_factory.mktemp("remote")
-    live = LiveServer(directory, sqlite_env(directory), free_port())
-    key = roadlink("keys", "create", "--scope", "admin", env=live.env, cwd=directory).strip()
-    live.start(workers=1)
-    try:
-        headers = {"Authorization": f"Bearer {key}"}
-        created = httpx.post(
-            f"{live.url}/v1/deployments", json={"name": "remote"}, headers=headers, timeout=30
-        )
-        csv = directory / "large.csv"
-        csv.write_text(write_detections_csv(simulate(preset("large"), seed=1).detections))
-        yield Served(live.url, key, created.json()["id"], csv)
-    finally:
-        live.stop()
 
 
 def submitted(served: Served, *extra: str) -> tuple[str, str, str]:
@@ -136,39 +103,3 @@ def test_an_unreachable_server_is_one_line_too():
     done = runner.invoke(app, ["jobs"], env={"ROADLINK_URL": f"http://127.0.0.1:{free_port()}"})
     assert done.exit_code == 1
     assert done.stderr.startswith("error: cannot reach http://127.0.0.1:")
-
-
-def test_follow_prints_the_vehicles_a_live_association_publishes(served: Served) -> None:
-    headers = {"Authorization": f"Bearer {served.key}"}
-    with httpx.Client(base_url=served.url, headers=headers, timeout=30) as http:
-        road = http.post("/v1/deployments", json={"name": "followed"}).json()["id"]
-        # Each gateway posts its whole 40 s at once: a lateness above that keeps them on time.
-        started = http.put(f"/v1/deployments/{road}/live", json={"lateness": 60})
-        assert started.status_code == 200
-        d = read_detections_csv(served.csv.read_text())
-        for sensor in sorted(set(d.sensor_id.tolist())):  # a gateway per sensor
-            body = write_detections_csv(d.take((d.sensor_id == sensor).nonzero()[0]))
-            posted = http.post(
-                f"/v1/deployments/{road}/batches",
-                content=body,
-                headers={"content-type": "text/csv"},
-            )
-            assert posted.status_code == 201, posted.text
-        http.post(f"/v1/deployments/{road}/live/flush")
-        # The long poll returns as soon as the worker has published the first vehicles.
-        first = http.get(f"/v1/deployments/{road}/vehicles?wait=30").json()
-        assert first["vehicles"]
-        while http.get(f"/v1/deployments/{road}/live").json()["pending"]:
-            http.get(f"/v1/deployments/{road}/vehicles?after={first['next']}&wait=1")
-    done = runner.invoke(app, ["follow", "--deployment", road, "--until-idle"], env=served.env)
-    assert done.exit_code == 0, done.output
-    vehicles = [json.loads(line) for line in done.stdout.splitlines()]
-    assert [v["vehicle_id"] for v in vehicles] == [f"V{k}" for k in range(1, 11)]
-    offline = associate(d, "assignment")
-    assert sum(len(v["detections"]) for v in vehicles) == len(offline.detections)
-    as_csv = runner.invoke(
-        app, ["follow", "--deployment", road, "--until-idle", "--csv"], env=served.env
-    )
-    lines = as_csv.stdout.splitlines()
-    assert lines[0].startswith("vehicle_id,confidence,detection_id")
-    assert len(lines) == 1 + len(d)

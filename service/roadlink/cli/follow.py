@@ -68,11 +68,11 @@ def follow_command(
                         "wait": 0 if until_idle else POLL_WAIT_SECONDS,
                     },
                 )
-                for vehicle in page["vehicles"]:
+                for vehicle in page["items"]:
                     _print(vehicle, writer)
                 sys.stdout.flush()
-                cursor = page["next"]
-                if until_idle and not page["vehicles"]:
+                cursor = page["next_cursor"]
+                if until_idle and not page["items"]:
                     return
     except KeyboardInterrupt:
         typer.echo(f"stopped after cursor {cursor or '(none)'}", err=True)

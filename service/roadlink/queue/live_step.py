@@ -35,6 +35,7 @@ from roadlink.db.live_records import (
 )
 from roadlink.db.models import LiveVehicle
 from roadlink.db.repository import KeyedDetections, load_detection_window
+from roadlink.logs import log_context
 
 log = logging.getLogger(__name__)
 
@@ -59,14 +60,25 @@ def run_live_step(
         claimed = claim_live_step(session, worker_id=worker_id, lease_seconds=lease_seconds)
     if claimed is None:
         return False
-    with sessions() as session:
-        outcome = compute_step(session, claimed, lease_seconds=lease_seconds)
-    with transaction(sessions) as session:
-        vehicles = commit_step(session, worker_id=worker_id, step=outcome)
-        if vehicles is not None:
-            published(session, vehicles)
-    if vehicles is None:
-        log.info("live step of %s discarded: its lease was lost", claimed.deployment_id)
+    # The step's log lines (the associator's warnings included) name its deployment, as a
+    # job's do (roadlink.logs).
+    with log_context(deployment_id=claimed.deployment_id):
+        with sessions() as session:
+            outcome = compute_step(session, claimed, lease_seconds=lease_seconds)
+        with transaction(sessions) as session:
+            vehicles = commit_step(session, worker_id=worker_id, step=outcome)
+            if vehicles is not None:
+                published(session, vehicles)
+        if vehicles is None:
+            log.info("live step of %s discarded: its lease was lost", claimed.deployment_id)
+        elif vehicles:
+            log.info(
+                "live step of %s published %d vehicles (%s to %s)",
+                claimed.deployment_id,
+                len(vehicles),
+                vehicles[0].vehicle_id,
+                vehicles[-1].vehicle_id,
+            )
     return True
 
 

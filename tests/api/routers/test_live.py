@@ -31,14 +31,18 @@ def _drain(worker: Worker) -> None:
 
 
 def _all_vehicles(client: TestClient, deployment: str) -> list[dict[str, Any]]:
+    """Every vehicle published so far, following `next` as a list's pages are followed; a feed
+    has no last page, so it stops at the first empty one."""
     vehicles: list[dict[str, Any]] = []
-    after = ""
+    link = f"/v1/deployments/{deployment}/vehicles?limit=5"
     while True:
-        page = client.get(f"/v1/deployments/{deployment}/vehicles?after={after}&limit=5").json()
-        if not page["vehicles"]:
+        response = client.get(link)
+        page = response.json()
+        assert response.headers["Link"] == f'<{page["next"]}>; rel="next"'
+        if not page["items"]:
             return vehicles
-        vehicles += page["vehicles"]
-        after = page["next"]
+        vehicles += page["items"]
+        link = page["next"]
 
 
 def test_start_feed_flush_and_stop(
@@ -73,8 +77,13 @@ def test_start_feed_flush_and_stop(
         first["detections"][0]
     )
     # Nothing after the last cursor; a wait that finds nothing answers empty, same cursor.
-    tail = client.get(f"{base}/vehicles?after={vehicles[-1]['cursor']}&wait=0.1").json()
-    assert tail == {"vehicles": [], "next": vehicles[-1]["cursor"]}
+    last = vehicles[-1]["cursor"]
+    tail = client.get(f"{base}/vehicles?after={last}&wait=0.1").json()
+    assert tail == {
+        "items": [],
+        "next_cursor": last,
+        "next": f"{base}/vehicles?wait=0.1&after={last}",
+    }
     plot = client.get(f"{base}/live/plot?vehicles=5&format=svg")
     assert plot.status_code == 200 and plot.headers["content-type"] == "image/svg+xml"
     assert plot.text.count('id="target-T') == 5  # one line per vehicle
@@ -100,6 +109,9 @@ def test_bad_requests_name_the_field_and_change_nothing(
     assert_problem(client.get(f"{base}/live"), 404)  # nothing was started
     problem = assert_problem(client.get(f"{base}/vehicles?after=abc"), 422)
     assert problem["errors"][0]["field"] == "after"
+    for limit in ("0", "1001"):  # the lists' bounds
+        problem = assert_problem(client.get(f"{base}/vehicles?limit={limit}"), 422)
+        assert problem["errors"][0]["field"] == "limit"
     unknown = "/v1/deployments/00000000-0000-0000-0000-000000000000"
     assert_problem(client.put(f"{unknown}/live", json={}), 404)
     assert_problem(client.get(f"{unknown}/vehicles"), 404)

@@ -18,6 +18,7 @@ from starlette.concurrency import run_in_threadpool
 from roadlink.api.deps import SessionDep, SessionFactoryDep, SettingsDep
 from roadlink.api.errors import ApiProblem, problem_responses
 from roadlink.api.jobresults import render_elsewhere
+from roadlink.api.pagination import DEFAULT_LIMIT, LimitQuery, link_next
 from roadlink.api.schemas.live import LiveStart, LiveStatusRead, VehiclePage, VehicleRead
 from roadlink.db.models import LiveVehicle
 from roadlink.plots import PlotFormat
@@ -28,6 +29,13 @@ router = APIRouter(prefix="/v1/deployments/{deployment_id}", tags=["live"])
 # An idle event stream sends a comment this often, so proxies keep it open.
 KEEPALIVE_SECONDS = 15.0
 STREAM_PAGE = 100
+FEED_LINK_HEADER = {
+    "Link": {
+        "description": 'The next page, as `<link>; rel="next"` (RFC 8288): always sent, since a '
+        "feed has no last page.",
+        "schema": {"type": "string"},
+    }
+}
 
 
 def _status(found: object) -> LiveStatusRead:
@@ -136,7 +144,7 @@ def _read(
     "/vehicles",
     name="list_vehicles",
     response_model=VehiclePage,
-    responses=problem_responses(404, 408, 422),
+    responses={200: {"headers": FEED_LINK_HEADER}, **problem_responses(404, 408, 422)},
     summary="The deployment's published vehicles after a cursor",
 )
 async def list_vehicles(
@@ -144,10 +152,12 @@ async def list_vehicles(
     request: Request,
     settings: SettingsDep,
     sessions: SessionFactoryDep,
+    response: Response,
     after: Annotated[
-        str | None, Query(max_length=40, description="The `next` of the previous page.")
+        str | None,
+        Query(max_length=40, description="The `next_cursor` of the previous page (opaque)."),
     ] = None,
-    limit: Annotated[int, Query(ge=1, le=1000, description="Page size.")] = 100,
+    limit: LimitQuery = DEFAULT_LIMIT,
     wait: Annotated[
         float,
         Query(
@@ -157,8 +167,8 @@ async def list_vehicles(
         ),
     ] = 0.0,
 ) -> VehiclePage:
-    """Vehicles in publication order. Each is published once, final, with a stable id; ask
-    again with `next` for the following ones."""
+    """Vehicles in publication order. Each is published once, final, with a stable id; follow
+    `next` (also the `Link` header) for the following ones."""
     cursor = live.parse_cursor(after)
     vehicles = await live.wait_for_vehicles(
         lambda: run_in_threadpool(_read, sessions, deployment_id, cursor, limit),
@@ -167,9 +177,11 @@ async def list_vehicles(
         client_gone=request.is_disconnected,
     )
     documents = [live.vehicle_document(v) for v in vehicles]
+    next_cursor = str(vehicles[-1].seq) if vehicles else str(cursor)
     return VehiclePage(
-        vehicles=[VehicleRead.model_validate(d) for d in documents],
-        next=str(vehicles[-1].seq) if vehicles else str(cursor),
+        items=[VehicleRead.model_validate(d) for d in documents],
+        next_cursor=next_cursor,
+        next=link_next(request, response, next_cursor, "after"),
     )
 
 

@@ -92,7 +92,13 @@ class VehicleRead(BaseModel):
 
 
 class VehiclePage(BaseModel):
-    """A page of the feed, in publication order."""
+    """A page of the feed, in publication order. Shaped as the lists' pages are, but a feed has
+    no last page: `next` is never null, and on an empty page it asks again from where this one
+    started (with `wait`, a long poll)."""
 
-    vehicles: list[VehicleRead]
-    next: str = Field(description="The cursor to ask the next page with (?after=).")
+    items: list[VehicleRead]
+    next_cursor: str = Field(description="Pass as `after` for the next page (opaque).")
+    next: str = Field(
+        description="The next page's link: this request's path and query with `after` set to "
+        "`next_cursor`. Never null: follow it (with `wait`) for the vehicles still to come."
+    )

@@ -11,8 +11,6 @@ import random
 import signal
 import time
 import uuid
-from collections.abc import Iterator
-from pathlib import Path
 
 import orjson
 import pytest
@@ -26,30 +24,17 @@ from roadlink.db.repository import create_deployment
 from roadlink.queue.worker import run_worker_process
 from roadlink.settings import Settings
 from roadlink.simulation import preset, simulate
-from tests.databases import (
-    BACKENDS,
-    create_postgres_database,
-    drop_postgres_database,
-    require_postgres,
-)
-from tests.live.replay import flush, live_score, per_sensor_batches, published, start, store
+from tests.databases import BACKENDS
+from tests.queue.live_replay import flush, live_score, per_sensor_batches, published, start, store
 
 KILLS = 5
 
 
-@pytest.fixture(params=BACKENDS)
-def crash_database(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+@pytest.fixture
+def crash_database(empty_database_url: str) -> str:
     """A database of its own: the worker processes open it themselves."""
-    if request.param == "postgresql":
-        require_postgres()
-        url = create_postgres_database()
-        upgrade_to_head(url)
-        yield url
-        drop_postgres_database(url)
-    else:
-        url = f"sqlite:///{tmp_path / 'crash.db'}"
-        upgrade_to_head(url)
-        yield url
+    upgrade_to_head(empty_database_url)
+    return empty_database_url
 
 
 def _start_worker(settings: Settings) -> multiprocessing.process.BaseProcess:
@@ -72,6 +57,7 @@ def _settled(sessions: sessionmaker[Session], road: uuid.UUID) -> bool:
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("empty_database_url", BACKENDS, indirect=True)
 def test_every_vehicle_exactly_once_across_five_sigkills(crash_database: str) -> None:
     settings = Settings(
         database_url=crash_database,

@@ -3,6 +3,9 @@ as the offline job does, late data, flush, and the lease that keeps a step's wor
 
 from __future__ import annotations
 
+import io
+import json
+import logging
 import uuid
 from datetime import UTC, datetime, timedelta
 
@@ -11,15 +14,16 @@ import pytest
 from sqlalchemy import update
 from sqlalchemy.orm import Session, sessionmaker
 
+from roadlink import logs
 from roadlink.association.detections import Detections
 from roadlink.association.pipeline import associate
 from roadlink.db.engine import transaction
 from roadlink.db.live_records import claim_live_step, commit_step, get_live
-from roadlink.db.models import LiveAssociation
+from roadlink.db.models import LiveAssociation, LiveVehicle
 from roadlink.queue.live_step import compute_step, run_live_step
 from roadlink.settings import Settings
 from roadlink.simulation import preset, simulate
-from tests.live.replay import flush, live_score, per_sensor_batches, published, start, store
+from tests.queue.live_replay import flush, live_score, per_sensor_batches, published, start, store
 
 LEASE = 30.0
 
@@ -195,3 +199,35 @@ def test_one_sensors_batches_wait_for_the_others(
     flush(sessions, road)
     _steps(sessions)
     assert len(published(sessions, road)) == 10
+
+
+def test_a_steps_log_lines_name_its_deployment(
+    sessions: sessionmaker[Session], settings: Settings, road: uuid.UUID
+) -> None:
+    start(sessions, road, lateness=5.0)
+    store(sessions, settings, road, _traffic(targets=3))
+    flush(sessions, road)
+    seen: list[str | None] = []
+
+    def published(session: Session, vehicles: list[LiveVehicle]) -> None:
+        seen.append(logs.current("deployment_id"))
+
+    # The JSON lines a worker writes (roadlink.logs.configure_logging), from this module.
+    written = io.StringIO()
+    handler = logging.StreamHandler(written)
+    handler.addFilter(logs.ContextFilter())
+    handler.setFormatter(logs.JsonFormatter())
+    logger = logging.getLogger("roadlink.queue.live_step")
+    logger.addHandler(handler)
+    level = logger.level
+    logger.setLevel(logging.INFO)
+    try:
+        assert run_live_step(sessions, worker_id="w1", lease_seconds=LEASE, published=published)
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    assert seen == [str(road)]
+    assert logs.current("deployment_id") is None  # only within the step
+    (line,) = [json.loads(text) for text in written.getvalue().splitlines()]
+    assert line["message"] == f"live step of {road} published 3 vehicles (V1 to V3)"
+    assert line["deployment_id"] == str(road)
