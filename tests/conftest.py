@@ -37,6 +37,8 @@ TABLES_CHILD_FIRST = (
     "live_settled_detection",
     "live_vehicle",
     "live_association",
+    "webhook_delivery",
+    "webhook",
     "job_idempotency_key",
     "api_key",
     "job_result",

@@ -91,14 +91,17 @@ def store_batches(engine: Engine, *batches: Detections) -> tuple[uuid.UUID, list
     return deployment.id, ids
 
 
-def post_csv_batch(client: Any, deployment_id: str, text: str, **params: str) -> dict[str, Any]:
-    """Post a CSV batch to the deployment (with `params` in the query, e.g. associator=...);
-    the batch as created (201), with its job in `job` when one was asked for."""
+def post_csv_batch(
+    client: Any, deployment_id: str, text: str, *, request_id: str | None = None, **params: str
+) -> dict[str, Any]:
+    """Post a CSV batch to the deployment (with `params` in the query, e.g. associator=...,
+    and `request_id` as X-Request-ID); the batch as created (201), with its job in `job` when
+    one was asked for."""
+    headers = {"content-type": "text/csv"}
+    if request_id is not None:
+        headers["X-Request-ID"] = request_id
     posted = client.post(
-        f"/v1/deployments/{deployment_id}/batches",
-        content=text,
-        headers={"content-type": "text/csv"},
-        params=params,
+        f"/v1/deployments/{deployment_id}/batches", content=text, headers=headers, params=params
     )
     assert posted.status_code == 201, posted.text
     return dict(posted.json())

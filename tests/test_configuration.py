@@ -49,8 +49,8 @@ def test_env_example_defaults_are_the_settings_defaults(monkeypatch) -> None:
             monkeypatch.setenv(name, value)
             uncommented += 1
     # All but those without a literal default (the number of workers, the public URL, the
-    # heartbeat directory, which is per user).
-    assert uncommented == len(Settings.model_fields) - 3
+    # heartbeat directory, which is per user, the retention period: unset keeps everything).
+    assert uncommented == len(Settings.model_fields) - 4
     defaults = {
         name: field.get_default(call_default_factory=True)
         for name, field in Settings.model_fields.items()

@@ -13,7 +13,9 @@ from typing import Any
 import httpx
 import pytest
 
+from roadlink.db.engine import make_session_factory
 from roadlink.logs import ContextFilter, JsonFormatter, configure_logging, log_context
+from roadlink.queue.webhook_dispatch import WebhookDispatcher
 from roadlink.settings import Settings
 from tests.helpers import post_csv_batch
 from tests.live_server import LiveServer, free_port, roadlink, sqlite_env
@@ -92,12 +94,9 @@ def test_configure_logging_writes_json_or_text_once(capsys):
 def test_a_workers_lines_for_a_job_carry_the_id_of_the_request_that_made_it(
     client, deployment, worker, json_lines
 ):
-    created = client.post(
-        f"/v1/deployments/{deployment['id']}/batches",
-        content=CSV,
-        params={"associator": "kmeans"},
-        headers={"content-type": "text/csv", "X-Request-ID": "gw7-0042"},
-    ).json()
+    created = post_csv_batch(
+        client, deployment["id"], CSV, associator="kmeans", request_id="gw7-0042"
+    )
     json_lines.truncate(0)
     json_lines.seek(0)
     assert worker.run_once()
@@ -112,6 +111,41 @@ def test_a_workers_lines_for_a_job_carry_the_id_of_the_request_that_made_it(
         assert line["job_id"] == created["job"]["id"]
         assert line["deployment_id"] == deployment["id"]
         assert line["batch_id"] == created["id"]
+
+
+def test_the_audit_line_of_a_delete_carries_the_request_deployment_and_batch(
+    client, deployment, json_lines
+):
+    batch = post_csv_batch(client, deployment["id"], CSV)
+    path = f"/v1/deployments/{deployment['id']}/batches/{batch['id']}"
+    deleted = client.delete(path, headers={"X-Request-ID": "ops-7"})
+    assert deleted.status_code == 204, deleted.text
+    [line] = [line for line in parsed(json_lines) if line["logger"] == "roadlink.audit"]
+    assert (line["request_id"], line["deployment_id"]) == ("ops-7", deployment["id"])
+    assert line["batch_id"] == batch["id"]
+
+
+def test_a_webhook_delivery_line_carries_the_deployment_job_and_the_jobs_request(
+    client, deployment, worker, engine, settings, json_lines
+):
+    hooks = f"/v1/deployments/{deployment['id']}/webhooks"
+    # Nothing listens on the discard port: the attempt fails at once, and is logged.
+    assert client.post(hooks, json={"url": "http://127.0.0.1:9/"}).status_code == 201
+    created = post_csv_batch(
+        client, deployment["id"], CSV, associator="kmeans", request_id="gw7-0043"
+    )
+    assert worker.run_once()
+    dispatcher = WebhookDispatcher(settings, make_session_factory(engine))
+    try:
+        assert dispatcher.dispatch_once()
+    finally:
+        dispatcher.close()
+    [line] = [
+        line for line in parsed(json_lines) if line["logger"] == "roadlink.queue.webhook_dispatch"
+    ]
+    assert line["message"].startswith("webhook delivery ")
+    assert (line["request_id"], line["job_id"]) == ("gw7-0043", created["job"]["id"])
+    assert line["deployment_id"] == deployment["id"]
 
 
 @pytest.mark.slow

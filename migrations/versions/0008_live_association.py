@@ -2,7 +2,7 @@
 published (their sequence is the feed's cursor), and the detections it settled.
 
 Revision ID: 0008
-Revises: 0006
+Revises: 0007
 Create Date: 2026-11-25 03:03:35.823723
 """
 
@@ -16,7 +16,7 @@ from alembic import op
 import roadlink.db.models
 
 revision: str = '0008'
-down_revision: str | None = '0006'
+down_revision: str | None = '0007'
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 

@@ -146,6 +146,43 @@ class Settings(BaseSettings):
         ge=24.0,
         description="How long an Idempotency-Key is remembered (at least 24 hours).",
     )
+    webhook_max_attempts: int = Field(
+        default=10,
+        ge=1,
+        description="Attempts a webhook delivery gets (an answer other than 2xx, or none, "
+        "spends one) before it is marked failed; it can still be redelivered by hand.",
+    )
+    webhook_backoff_seconds: float = Field(
+        default=10.0,
+        ge=0,
+        description="Delay before a webhook delivery's second attempt; it doubles per attempt, "
+        "up to ROADLINK_WEBHOOK_MAX_BACKOFF_SECONDS.",
+    )
+    webhook_max_backoff_seconds: float = Field(
+        default=3600.0, ge=0, description="Longest delay between two attempts of a delivery."
+    )
+    webhook_timeout_seconds: float = Field(
+        default=10.0,
+        gt=0,
+        description="How long a worker waits for a webhook's receiver to answer one attempt.",
+    )
+    webhook_allow_http: bool = Field(
+        default=False,
+        description="Accept plain http:// webhook URLs to any host. Off, a webhook must be "
+        "https://, or http:// to a loopback address (development and tests).",
+    )
+    retention_days: float | None = Field(
+        default=None,
+        gt=0,
+        description="Delete batches (with their detections), finished jobs (with their results) "
+        "and webhook deliveries older than this many days, in the workers, hourly. Unset: keep "
+        "everything until deleted through the API.",
+    )
+
+    @field_validator("retention_days", mode="before")
+    @classmethod
+    def _empty_retention_is_unset(cls, value: object) -> object:
+        return None if value == "" else value
 
     @field_validator("public_url", mode="before")
     @classmethod

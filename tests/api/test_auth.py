@@ -151,6 +151,11 @@ def test_read_keys_read_and_run_jobs_but_change_nothing_else(
             {"content": paper_csv, "headers": {"content-type": "text/csv"}},
         ),
         ("POST", "/v1/simulations", {"json": {"deployment_id": world["first"]}}),
+        # Deleting data and managing webhooks (which send results out) are an admin's.
+        ("DELETE", f"/v1/deployments/{world['first']}/batches/{batch['id']}", {}),
+        ("DELETE", f"/v1/deployments/{world['second']}", {}),
+        ("POST", f"/v1/deployments/{world['first']}/webhooks", {"json": {"url": "https://x.y"}}),
+        ("GET", f"/v1/deployments/{world['first']}/webhooks", {}),
     ]
     for method, path, extra in forbidden:
         headers = {**extra.pop("headers", {}), **read}
@@ -194,6 +199,8 @@ def test_ingest_keys_post_and_read_their_own_deployments_only(
         ("GET", "/v1/jobs", None),
         ("POST", "/v1/jobs", {"batch_id": posted.json()["id"]}),
         ("POST", "/v1/deployments", {"name": "mine"}),
+        ("DELETE", f"/v1/deployments/{world['first']}", None),
+        ("GET", f"/v1/deployments/{world['first']}/webhooks", None),
     ):
         assert_problem(anonymous.request(method, path, json=body, headers=ingest), 403)
 

@@ -161,3 +161,19 @@ def test_created_resources_carry_their_location(client, deployment):
         "/v1/simulations", json={"deployment_id": deployment["id"], "preset": "small", "seed": 1}
     )
     assert simulated.headers["location"] == f"/v1/batches/{simulated.json()['id']}"
+
+
+def test_a_deployments_webhooks_and_their_deliveries_come_in_pages(client, worker, deployment):
+    hooks = f"/v1/deployments/{deployment['id']}/webhooks"
+    made = [client.post(hooks, json={"url": f"http://127.0.0.1:9/{k}"}).json()["id"] for k in "abc"]
+    assert every_page(client, hooks, limit=2) == [made[:2], made[2:]]
+    for _ in range(3):
+        post_batch(client, deployment["id"], associator="kmeans")
+        assert worker.run_once()
+    deliveries = f"{hooks}/{made[0]}/deliveries"
+    newest_first = [d["id"] for d in client.get(deliveries).json()["items"]]
+    assert len(set(newest_first)) == 3
+    assert every_page(client, deliveries, limit=2) == [newest_first[:2], newest_first[2:]]
+    cursor = client.get(hooks, params={"limit": 1}).json()["next_cursor"]
+    problem = assert_problem(client.get(deliveries, params={"cursor": cursor}), 422)
+    assert problem["errors"][0]["field"] == "cursor"

@@ -35,6 +35,7 @@ from roadlink.api.routers import (
     live,
     pages,
     simulations,
+    webhooks,
 )
 from roadlink.api.schemas import BatchCreate
 from roadlink.api.stalls import StallWatch
@@ -64,6 +65,7 @@ TAGS = [
     {"name": "jobs", "description": "Associations run by the workers, and their results."},
     {"name": "associators", "description": "The algorithms a job can use."},
     {"name": "simulations", "description": "Labelled detections from the paper's Algorithm 1."},
+    {"name": "webhooks", "description": "Signed events of a deployment POSTed to its URLs."},
     {"name": "health", "description": "Liveness, readiness and Prometheus metrics."},
 ]
 
@@ -106,7 +108,9 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
     app.add_middleware(ProblemsForEveryError)
     # Added last: the outermost layer, so that every answer (a problem included) has the id.
     app.add_middleware(RequestIdMiddleware)
-    protected = [m.router for m in (deployments, batches, jobs, live, associators, simulations)]
+    protected = [
+        m.router for m in (deployments, batches, jobs, live, associators, simulations, webhooks)
+    ]
     check_policy_covers(protected)
     for router in protected:
         app.include_router(

@@ -148,6 +148,19 @@ POLICY: dict[tuple[str, str], Rule] = {
     # A simulation writes synthetic detections into a deployment and runs Algorithm 1 in the
     # API process: an administrator's tool, not a gateway's or an analyst's.
     ("POST", "/v1/simulations"): ADMIN_ONLY,
+    # Deleting data and managing where events go (a webhook sends job results out of the
+    # service): an administrator's.
+    ("DELETE", "/v1/deployments/{deployment_id}"): ADMIN_ONLY,
+    ("DELETE", "/v1/deployments/{deployment_id}/batches/{batch_id}"): ADMIN_ONLY,
+    ("POST", "/v1/deployments/{deployment_id}/webhooks"): ADMIN_ONLY,
+    ("GET", "/v1/deployments/{deployment_id}/webhooks"): ADMIN_ONLY,
+    ("GET", "/v1/deployments/{deployment_id}/webhooks/{webhook_id}"): ADMIN_ONLY,
+    ("DELETE", "/v1/deployments/{deployment_id}/webhooks/{webhook_id}"): ADMIN_ONLY,
+    ("GET", "/v1/deployments/{deployment_id}/webhooks/{webhook_id}/deliveries"): ADMIN_ONLY,
+    (
+        "POST",
+        "/v1/deployments/{deployment_id}/webhooks/{webhook_id}/deliveries/{delivery_id}/redeliver",
+    ): ADMIN_ONLY,
 }
 
 
@@ -301,3 +314,10 @@ def principal_of(request: Request) -> Principal:
     """The caller `authorize` established for this request."""
     principal: Principal = request.state.principal
     return principal
+
+
+def actor_of(request: Request) -> str:
+    """Who made this request, for the audit log: the API key's public prefix (never anything
+    that authenticates), or `anonymous` when authentication is disabled."""
+    principal = principal_of(request)
+    return ANONYMOUS if principal.prefix is None else f"API key {principal.prefix}"

@@ -14,6 +14,7 @@ app = typer.Typer(
 # Sub-command modules register themselves on import.
 from roadlink.cli import (  # noqa: E402,F401
     analysis,
+    backup,
     config,
     follow,
     keys,

@@ -1,4 +1,5 @@
-"""The lists the API pages through: deployments, a deployment's batches, jobs.
+"""The lists the API pages through: deployments, a deployment's batches, jobs, a deployment's
+webhooks and a webhook's deliveries.
 
 Each is in a fixed total order on (created_at, id), and a page starts after a `Keyset`, the last
 item of the page before, rather than at an offset: rows inserted meanwhile never shift the rest
@@ -16,7 +17,7 @@ from typing import Any, NamedTuple
 from sqlalchemy import and_, or_, select
 from sqlalchemy.orm import InstrumentedAttribute, Session
 
-from roadlink.db.models import Batch, Deployment, Detection, Job, JobState
+from roadlink.db.models import Batch, Deployment, Detection, Job, JobState, Webhook, WebhookDelivery
 
 
 class Keyset(NamedTuple):
@@ -81,6 +82,37 @@ def list_jobs(
         query = query.where(Job.created_at >= created_since)
     if after is not None:
         query = query.where(_after(Job.created_at, Job.id, after, newest_first=True))
+    return session.scalars(query).all()
+
+
+def list_webhooks(
+    session: Session, *, deployment_id: uuid.UUID, after: Keyset | None, limit: int
+) -> Sequence[Webhook]:
+    """A deployment's webhooks, oldest first."""
+    query = (
+        select(Webhook)
+        .where(Webhook.deployment_id == deployment_id)
+        .order_by(Webhook.created_at, Webhook.id)
+        .limit(limit + 1)
+    )
+    if after is not None:
+        query = query.where(_after(Webhook.created_at, Webhook.id, after, newest_first=False))
+    return session.scalars(query).all()
+
+
+def list_deliveries(
+    session: Session, *, webhook_id: uuid.UUID, after: Keyset | None, limit: int
+) -> Sequence[WebhookDelivery]:
+    """A webhook's deliveries, newest first."""
+    query = (
+        select(WebhookDelivery)
+        .where(WebhookDelivery.webhook_id == webhook_id)
+        .order_by(WebhookDelivery.created_at.desc(), WebhookDelivery.id.desc())
+        .limit(limit + 1)
+    )
+    if after is not None:
+        newer = _after(WebhookDelivery.created_at, WebhookDelivery.id, after, newest_first=True)
+        query = query.where(newer)
     return session.scalars(query).all()
 
 

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+import orjson
 from sqlalchemy import case, func, insert, or_, select, update
 from sqlalchemy.orm import Session
 
@@ -351,3 +352,17 @@ def count_settled(session: Session, *, deployment_id: uuid.UUID) -> int:
     """How many of the deployment's detections the live association has settled."""
     query = select(func.count()).where(LiveSettledDetection.deployment_id == deployment_id)
     return int(session.scalar(query) or 0)
+
+
+def vehicle_document(vehicle: LiveVehicle) -> dict[str, Any]:
+    """A published vehicle as the feed (and its `vehicle.published` webhook event) shows it."""
+    return {
+        "vehicle_id": vehicle.vehicle_id,
+        "revision": vehicle.revision,
+        "final": vehicle.final,
+        "confidence": vehicle.confidence,
+        "first_timestamp": vehicle.first_timestamp,
+        "last_timestamp": vehicle.last_timestamp,
+        "cursor": str(vehicle.seq),
+        "detections": orjson.loads(vehicle.detections_json),
+    }

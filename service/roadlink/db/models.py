@@ -150,7 +150,8 @@ class Batch(Base):
     request_sha256: Mapped[str | None] = mapped_column(String(64))
     # The job enqueued with the batch (`associate` in the upload), in the same transaction.
     job_id: Mapped[uuid.UUID | None] = mapped_column(ForeignKey("job.id", ondelete="SET NULL"))
-    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    # Indexed for ROADLINK_RETENTION_DAYS, which deletes the oldest batches.
+    created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
 
 
 class Detection(Base):
@@ -207,7 +208,8 @@ class Job(Base):
     error: Mapped[str | None] = mapped_column(Text)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     started_at: Mapped[datetime | None] = mapped_column()
-    finished_at: Mapped[datetime | None] = mapped_column()
+    # Indexed for ROADLINK_RETENTION_DAYS, which deletes the jobs that finished long ago.
+    finished_at: Mapped[datetime | None] = mapped_column(index=True)
     duration_seconds: Mapped[float | None] = mapped_column(Float)
     # How many detections the job covered (known once it ran).
     n_detections: Mapped[int | None] = mapped_column(Integer)
@@ -357,3 +359,53 @@ class LiveSettledDetection(Base):
     timestamp: Mapped[float] = mapped_column(Float)
     vehicle_seq: Mapped[int | None] = mapped_column(DetectionKey)
     late: Mapped[bool] = mapped_column(default=False)
+
+
+class Webhook(Base):
+    """An HTTPS endpoint of a deployment's that receives its events (`event_types`), signed with
+    `secret` (kept in clear: the service signs with it; shown to the caller once, at creation)."""
+
+    __tablename__ = "webhook"
+
+    id: Mapped[uuid.UUID] = mapped_column(primary_key=True, default=uuid.uuid4)
+    deployment_id: Mapped[uuid.UUID] = mapped_column(
+        ForeignKey("deployment.id", ondelete="CASCADE"), index=True
+    )
+    url: Mapped[str] = mapped_column(String(2000))
+    secret: Mapped[str] = mapped_column(String(100))
+    # The event types it receives, e.g. ["job.finished"].
+    event_types: Mapped[list[str]] = mapped_column(JSON)
+    description: Mapped[str | None] = mapped_column(String(200))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class WebhookDelivery(Base):
+    """One event to send to one webhook: the outbox row, written in the transaction that made
+    the event happen, and then its delivery log (attempts, last answer, state)."""
+
+    __tablename__ = "webhook_delivery"
+    __table_args__ = (
+        # The dispatcher's query: the pending deliveries that are due.
+        Index("ix_webhook_delivery_state_next_attempt_at", "state", "next_attempt_at"),
+        # The delivery log of a webhook, newest first.
+        Index("ix_webhook_delivery_webhook_id_created_at", "webhook_id", "created_at"),
+    )
+
+    id: Mapped[uuid.UUID] = mapped_column(primary_key=True, default=uuid.uuid4)
+    webhook_id: Mapped[uuid.UUID] = mapped_column(ForeignKey("webhook.id", ondelete="CASCADE"))
+    # The event's id: the same in every delivery of one event (redeliveries included), so that
+    # receivers can drop duplicates (delivery is at least once).
+    event_id: Mapped[uuid.UUID] = mapped_column()
+    event_type: Mapped[str] = mapped_column(String(100))
+    # The request body, exactly as signed and sent.
+    payload: Mapped[str] = mapped_column(Text)
+    state: Mapped[str] = mapped_column(String(20))  # pending | delivered | failed
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    next_attempt_at: Mapped[datetime | None] = mapped_column()
+    last_attempt_at: Mapped[datetime | None] = mapped_column()
+    last_status_code: Mapped[int | None] = mapped_column(Integer)
+    last_error: Mapped[str | None] = mapped_column(Text)
+    delivered_at: Mapped[datetime | None] = mapped_column()
+    # The delivery this one sends again (POST .../redeliver), if it is a redelivery.
+    redelivery_of: Mapped[uuid.UUID | None] = mapped_column()
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)

@@ -36,6 +36,7 @@ from roadlink.db.live_records import (
 from roadlink.db.models import LiveVehicle
 from roadlink.db.repository import KeyedDetections, load_detection_window
 from roadlink.logs import log_context
+from roadlink.queue.webhooks import record_vehicles_published
 
 log = logging.getLogger(__name__)
 
@@ -44,8 +45,9 @@ FEATURES = ("lane", "length", "vehicle_class")
 
 def on_vehicles_published(session: Session, vehicles: list[LiveVehicle]) -> None:
     """Called in the transaction that publishes `vehicles` (a step's commit), after they have
-    their cursor `seq`: the hook for a 'vehicle published' event (webhooks). Whatever it writes
-    commits with the vehicles, or not at all. Does nothing yet."""
+    their cursor `seq`: their `vehicle.published` webhook events go to the outbox, so they
+    commit with the vehicles, or not at all."""
+    record_vehicles_published(session, vehicles)
 
 
 def run_live_step(

@@ -27,6 +27,7 @@ from roadlink.db.drivers import driver_of
 from roadlink.db.json_columns import Selection
 from roadlink.db.models import Job, JobResult, JobState
 from roadlink.logs import current_request_id
+from roadlink.queue.webhooks import record_job_finished
 
 NOTIFY_CHANNEL = "roadlink_jobs"
 """Channel told, when the transaction commits, of every job that becomes runnable (its id, or
@@ -50,10 +51,12 @@ def _announce_runnable(session: Session, job_id: uuid.UUID | None) -> None:
 
 
 def _announce_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> None:
-    """Tell result waiters that these jobs finished, when this transaction commits."""
-    ids = [str(j) for j in job_ids]
-    if ids:
-        driver_of(session).notify(session, FINISHED_CHANNEL, ids)
+    """Tell result waiters that these jobs finished, when this transaction commits, and put
+    their `job.finished` webhook events in the outbox, in this transaction."""
+    finished = list(job_ids)
+    if finished:
+        driver_of(session).notify(session, FINISHED_CHANNEL, [str(j) for j in finished])
+        record_job_finished(session, finished)
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from roadlink.queue.associator_process import (
     Succeeded,
     TimedOut,
 )
+from roadlink.queue.housekeeping import Housekeeping
 from roadlink.queue.live_step import run_live_step
 from roadlink.queue.liveness import HeartbeatFile
 from roadlink.queue.transitions import (
@@ -65,6 +66,8 @@ class Worker:
         """Work until `stopping` is set."""
         wakeup = wakeup or make_wakeup(self.settings.database_url)
         self.associator_process.start()  # so that the first job does not wait for it
+        housekeeping = Housekeeping(self.settings, self.sessions, self.stopping)
+        housekeeping.start()
         log.info("worker %s started", self.id)
         try:
             while not self.stopping.is_set():
@@ -74,6 +77,7 @@ class Worker:
         finally:
             wakeup.close()
             self._release_live_leases()
+            housekeeping.join(self.settings.webhook_timeout_seconds + 5)
             self.liveness.remove()
             log.info("worker %s stopped", self.id)
 

@@ -140,18 +140,8 @@ def parse_cursor(after: str | None) -> int:
     return int(after)
 
 
-def vehicle_document(vehicle: LiveVehicle) -> dict[str, Any]:
-    """A published vehicle as the feed shows it."""
-    return {
-        "vehicle_id": vehicle.vehicle_id,
-        "revision": vehicle.revision,
-        "final": vehicle.final,
-        "confidence": vehicle.confidence,
-        "first_timestamp": vehicle.first_timestamp,
-        "last_timestamp": vehicle.last_timestamp,
-        "cursor": str(vehicle.seq),
-        "detections": orjson.loads(vehicle.detections_json),
-    }
+# A published vehicle as the feed shows it (its webhook event shows the same).
+vehicle_document = live_records.vehicle_document
 
 
 def read_vehicles(

@@ -9,6 +9,7 @@ from fastapi import APIRouter, Query, Request, Response
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
+from roadlink.api.auth import actor_of
 from roadlink.api.deps import SessionDep, SettingsDep
 from roadlink.api.errors import ApiProblem, problem_responses
 from roadlink.api.idempotency_header import IdempotencyDep, media_type
@@ -21,6 +22,7 @@ from roadlink.db import listings, repository
 from roadlink.db.models import Deployment
 from roadlink.services.batches import ParsedBatch, batch_job, store_batch_once
 from roadlink.services.deployments import require_deployment
+from roadlink.services.lifecycle import delete_batch as delete_stored_batch
 from roadlink.services.problems import ProblemItem
 
 router = APIRouter(tags=["batches"])
@@ -182,3 +184,22 @@ def get_batch(batch_id: uuid.UUID, session: SessionDep) -> BatchRead:
     if batch is None:
         raise ApiProblem(404, f"there is no batch {batch_id}")
     return batch_read(batch, batch_job(session, batch))
+
+
+@router.delete(
+    "/v1/deployments/{deployment_id}/batches/{batch_id}",
+    name="delete",
+    status_code=204,
+    responses=problem_responses(404, 409, 422),
+    summary="Delete a batch",
+)
+def delete_batch(
+    deployment_id: uuid.UUID, batch_id: uuid.UUID, request: Request, session: SessionDep
+) -> Response:
+    """Delete the batch, its detections, and the finished jobs (with their results) that read
+    them. 409 while a queued or running job reads it. Audited in the log."""
+    delete_stored_batch(
+        session, deployment_id=deployment_id, batch_id=batch_id, actor=actor_of(request)
+    )
+    session.commit()
+    return Response(status_code=204)

@@ -6,6 +6,7 @@ import uuid
 
 from fastapi import APIRouter, Request, Response
 
+from roadlink.api.auth import actor_of
 from roadlink.api.deps import SessionDep
 from roadlink.api.errors import problem_responses
 from roadlink.api.pagination import LINK_HEADER, CursorQuery, LimitQuery, decode_cursor, page_of
@@ -14,6 +15,7 @@ from roadlink.api.schemas import DeploymentCreate, DeploymentPage, DeploymentRea
 from roadlink.db import listings, repository
 from roadlink.db.json_columns import Sensor
 from roadlink.services.deployments import require_deployment
+from roadlink.services.lifecycle import delete_deployment as delete_stored_deployment
 
 router = APIRouter(prefix="/v1/deployments", tags=["deployments"])
 
@@ -73,3 +75,18 @@ def list_deployments(
 def get_deployment(deployment_id: uuid.UUID, session: SessionDep) -> DeploymentRead:
     """One deployment."""
     return DeploymentRead.model_validate(require_deployment(session, deployment_id))
+
+
+@router.delete(
+    "/{deployment_id}",
+    name="delete",
+    status_code=204,
+    responses=problem_responses(404, 409, 422),
+    summary="Delete a deployment and all its data",
+)
+def delete_deployment(deployment_id: uuid.UUID, request: Request, session: SessionDep) -> Response:
+    """Delete the deployment with its batches, detections, jobs, results and webhooks. 409
+    while one of its jobs is queued or running. Audited in the log."""
+    delete_stored_deployment(session, deployment_id=deployment_id, actor=actor_of(request))
+    session.commit()
+    return Response(status_code=204)

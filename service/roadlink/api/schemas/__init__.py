@@ -15,7 +15,14 @@ from roadlink.api.schemas.deployments import DeploymentCreate, DeploymentRead, S
 from roadlink.api.schemas.examples import EXAMPLE_ID
 from roadlink.api.schemas.health import HealthRead, ReadinessRead
 from roadlink.api.schemas.jobs import JobCreate, JobRead
-from roadlink.api.schemas.pages import BatchPage, BatchSummary, DeploymentPage, JobPage
+from roadlink.api.schemas.pages import (
+    BatchPage,
+    BatchSummary,
+    DeliveryPage,
+    DeploymentPage,
+    JobPage,
+    WebhookPage,
+)
 from roadlink.api.schemas.results import (
     AssociationResultRead,
     MetricsRead,
@@ -29,6 +36,12 @@ from roadlink.api.schemas.results import (
     TargetTrajectoryRead,
     TrackPointRead,
 )
+from roadlink.api.schemas.webhooks import (
+    DeliveryRead,
+    WebhookCreate,
+    WebhookCreated,
+    WebhookRead,
+)
 
 __all__ = [
     "EXAMPLE_ID",
@@ -39,6 +52,8 @@ __all__ = [
     "BatchPage",
     "BatchRead",
     "BatchSummary",
+    "DeliveryPage",
+    "DeliveryRead",
     "DeploymentCreate",
     "DeploymentPage",
     "DeploymentRead",
@@ -61,5 +76,9 @@ __all__ = [
     "TargetRead",
     "TargetTrajectoryRead",
     "TrackPointRead",
+    "WebhookCreate",
+    "WebhookCreated",
+    "WebhookPage",
+    "WebhookRead",
     "batch_read",
 ]

@@ -7,6 +7,7 @@ from pydantic import BaseModel, Field
 from roadlink.api.schemas.batches import BatchRead
 from roadlink.api.schemas.deployments import DeploymentRead
 from roadlink.api.schemas.jobs import JobRead
+from roadlink.api.schemas.webhooks import DeliveryRead, WebhookRead
 
 NEXT_DESCRIPTION = (
     "The next page's link: this request's path and query with the next cursor. Null on the "
@@ -41,5 +42,21 @@ class JobPage(BaseModel):
     """A page of jobs, newest first."""
 
     items: list[JobRead]
+    next_cursor: str | None = Field(description=NEXT_CURSOR_DESCRIPTION)
+    next: str | None = Field(description=NEXT_DESCRIPTION)
+
+
+class WebhookPage(BaseModel):
+    """A page of a deployment's webhooks, oldest first."""
+
+    items: list[WebhookRead]
+    next_cursor: str | None = Field(description=NEXT_CURSOR_DESCRIPTION)
+    next: str | None = Field(description=NEXT_DESCRIPTION)
+
+
+class DeliveryPage(BaseModel):
+    """A page of a webhook's delivery log, newest first."""
+
+    items: list[DeliveryRead]
     next_cursor: str | None = Field(description=NEXT_CURSOR_DESCRIPTION)
     next: str | None = Field(description=NEXT_DESCRIPTION)

@@ -22,6 +22,7 @@ from typing import Any, Protocol, TypeVar
 from sqlalchemy import Connection, Engine, Select, make_url
 from sqlalchemy.orm import Session
 
+from roadlink.db.drivers.backup_advice import BackupAdvice as BackupAdvice
 from roadlink.db.drivers.postgres import PostgresDriver
 from roadlink.db.drivers.sqlite import SqliteDriver
 
@@ -73,6 +74,10 @@ class Driver(Protocol):
 
     def lock_migrations(self, connection: Connection) -> None:
         """In the migration's transaction: wait while another process migrates."""
+
+    def backup(self, path: str) -> None:
+        """Copy the database, consistently and while it is in use, to the new file `path`;
+        raise `BackupAdvice` saying how instead when this database is copied by its own tools."""
 
 
 def driver_for(database_url: str) -> Driver:

@@ -7,11 +7,14 @@ commit, never on rollback), heard by LISTEN on a connection of the listener's ow
 from __future__ import annotations
 
 import contextlib
+import shlex
 from collections.abc import Iterator, Sequence
 from typing import Any
 
 from sqlalchemy import Connection, Engine, create_engine, func, make_url, text
 from sqlalchemy.orm import Session
+
+from roadlink.db.drivers.backup_advice import BackupAdvice
 
 # Any constant shared by every roadlink process: the advisory lock serialising migrations.
 MIGRATION_LOCK_KEY = 0x726F61646C696E6B  # "roadlink"
@@ -23,6 +26,7 @@ class PostgresDriver:
     name = "postgresql"
 
     def __init__(self, database_url: str) -> None:
+        self._url = database_url
         self._conninfo = libpq_conninfo(database_url)
 
     def make_engine(self, database_url: str, **kwargs: Any) -> Engine:
@@ -31,6 +35,19 @@ class PostgresDriver:
     def clock(self) -> Any:
         # One clock for every host: the hosts' own clocks drift apart.
         return func.now()
+
+    def backup(self, path: str) -> None:
+        # pg_dump takes a consistent snapshot while the service runs, and restores with
+        # pg_restore to any server version at least as new; roadlink cannot do better.
+        url = make_url(libpq_conninfo(self._url)).render_as_string(hide_password=True)
+        raise BackupAdvice(
+            "roadlink does not copy a PostgreSQL database; pg_dump does, consistently and while "
+            "the service runs:\n"
+            f"  pg_dump --format=custom --file {shlex.quote(path)} {shlex.quote(url)}\n"
+            "(the password from PGPASSWORD or ~/.pgpass). Restore it into an empty database "
+            "with\n"
+            f"  pg_restore --dbname <url of the new database> {shlex.quote(path)}"
+        )
 
     def lock_for_claim(self, query: Any) -> Any:
         # Concurrent workers each take a different job without waiting for each other.

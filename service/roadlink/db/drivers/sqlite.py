@@ -7,16 +7,19 @@ may be lost, so listeners are never sure to hear everything: their users poll as
 
 from __future__ import annotations
 
+import os
+import sqlite3
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
-from sqlalchemy import Connection, Engine, create_engine, event
+from sqlalchemy import Connection, Engine, create_engine, event, make_url
 from sqlalchemy.engine import ExceptionContext
 from sqlalchemy.orm import Session
 
 from roadlink.db.drivers import doorbell
+from roadlink.db.drivers.backup_advice import BackupAdvice
 from roadlink.db.models import utcnow
 
 BUSY_TIMEOUT_SECONDS = 30.0
@@ -52,6 +55,20 @@ class SqliteDriver:
         event.listen(engine, "connect", _configure_connection)
         event.listen(engine, "handle_error", _drop_connections_that_cannot_write)
         return engine
+
+    def backup(self, path: str) -> None:
+        # VACUUM INTO copies in one read transaction: a consistent snapshot that, in WAL mode,
+        # does not hold up writers; it refuses a target that exists and is not empty.
+        source = make_url(self._database_url).database
+        if not source or source == ":memory:":
+            raise BackupAdvice("an in-memory database has nothing on disk to copy")
+        if os.path.exists(path):
+            raise FileExistsError(f"{path} exists; roadlink backup never overwrites a file")
+        connection = sqlite3.connect(source, timeout=BUSY_TIMEOUT_SECONDS)
+        try:
+            connection.execute("VACUUM INTO ?", (path,))
+        finally:
+            connection.close()
 
     def clock(self) -> Any:
         # Embedded, so every process using the file shares this host's clock.

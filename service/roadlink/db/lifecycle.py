@@ -1,0 +1,96 @@
+"""Deleting stored data: the jobs that read a batch, and deletes in bounded chunks, so that a
+batch of a million detections never holds the database's write lock (SQLite) or one huge
+transaction (PostgreSQL) for long."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Sequence
+from datetime import datetime
+
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session, sessionmaker
+
+from roadlink.db.engine import transaction
+from roadlink.db.json_columns import BatchSelection
+from roadlink.db.models import Batch, Detection, Job, JobState, WebhookDelivery
+
+# Rows one statement (and transaction) deletes.
+CHUNK = 5000
+
+ACTIVE = (JobState.QUEUED, JobState.RUNNING)
+
+
+def reads_batch(job: Job, batch: Batch) -> bool:
+    """Whether `job` reads (or read) detections of `batch`: it names the batch, or its time
+    window over the batch's deployment overlaps the batch's timestamps."""
+    if job.deployment_id != batch.deployment_id:
+        return False
+    selection = job.selection
+    if isinstance(selection, BatchSelection):
+        return batch.id in selection.batch_ids
+    starts_before_end = selection.start is None or selection.start <= batch.last_timestamp
+    ends_after_start = selection.end is None or selection.end > batch.first_timestamp
+    return starts_before_end and ends_after_start
+
+
+def jobs_reading(session: Session, batch: Batch) -> list[Job]:
+    """Every job (in any state) that reads detections of `batch`."""
+    jobs = session.scalars(select(Job).where(Job.deployment_id == batch.deployment_id)).all()
+    return [job for job in jobs if reads_batch(job, batch)]
+
+
+def active_jobs(session: Session, deployment_id: uuid.UUID) -> list[Job]:
+    """The deployment's queued and running jobs."""
+    query = select(Job).where(Job.deployment_id == deployment_id, Job.state.in_(ACTIVE))
+    return list(session.scalars(query).all())
+
+
+def active_jobs_anywhere(session: Session) -> list[Job]:
+    """Every queued and running job (a handful: the queue's depth)."""
+    return list(session.scalars(select(Job).where(Job.state.in_(ACTIVE))).all())
+
+
+def delete_detections(sessions: sessionmaker[Session], batch_ids: Sequence[uuid.UUID]) -> int:
+    """Delete the batches' detections, CHUNK rows per transaction; how many."""
+    ids_query = select(Detection.id).where(Detection.batch_id.in_(batch_ids))
+    return _delete_in_chunks(sessions, Detection, ids_query)
+
+
+def delete_finished_jobs_before(sessions: sessionmaker[Session], cutoff: datetime) -> int:
+    """Delete jobs that finished before `cutoff` (their results with them), in chunks."""
+    finished = (JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED)
+    return _delete_in_chunks(
+        sessions, Job, select(Job.id).where(Job.state.in_(finished), Job.finished_at < cutoff)
+    )
+
+
+def delete_deliveries_before(sessions: sessionmaker[Session], cutoff: datetime) -> int:
+    """Delete webhook deliveries (their event bodies, the delivery log) made before `cutoff`."""
+    return _delete_in_chunks(
+        sessions,
+        WebhookDelivery,
+        select(WebhookDelivery.id).where(WebhookDelivery.created_at < cutoff),
+    )
+
+
+def _delete_in_chunks(sessions: sessionmaker[Session], model: type, ids_query: object) -> int:
+    deleted = 0
+    while True:
+        with transaction(sessions) as session:
+            ids = session.scalars(ids_query.limit(CHUNK)).all()  # type: ignore[attr-defined]
+            if not ids:
+                return deleted
+            session.execute(delete(model).where(model.id.in_(ids)))  # type: ignore[attr-defined]
+        deleted += len(ids)
+
+
+def old_batches(session: Session, cutoff: datetime, limit: int) -> list[Batch]:
+    """Up to `limit` batches stored before `cutoff`, oldest first."""
+    query = (
+        select(Batch)
+        .where(Batch.created_at < cutoff)
+        .order_by(Batch.created_at, Batch.id)
+        .limit(limit)
+    )
+    return list(session.scalars(query).all())
