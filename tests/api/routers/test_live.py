@@ -1,5 +1,6 @@
 """A deployment's live association over HTTP: start, status, stop, flush, the vehicles feed by
-cursor (with ?wait=) and as Server-Sent Events resumed from Last-Event-ID."""
+cursor (with ?wait=) and as Server-Sent Events resumed from Last-Event-ID; deleted with its
+deployment."""
 
 from __future__ import annotations
 
@@ -7,11 +8,12 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import Engine
 
 from roadlink.association.detections import Detections
 from roadlink.queue.worker import Worker
 from roadlink.simulation import preset, simulate
-from tests.helpers import assert_problem, detection_rows
+from tests.helpers import assert_problem, detection_rows, row_counts
 
 
 def _traffic() -> Detections:
@@ -146,3 +148,20 @@ def test_the_event_stream_resumes_after_last_event_id(
         f"{base}/vehicles/stream?idle_timeout=0.2", headers={"Last-Event-ID": events[4][0]}
     )
     assert _events(resumed.text) == events[5:]
+
+
+def test_deleting_the_deployment_deletes_its_live_association(
+    client: TestClient, deployment: dict[str, Any], worker: Worker, engine: Engine
+) -> None:
+    base = f"/v1/deployments/{deployment['id']}"
+    client.put(f"{base}/live", json={"lateness": 5})
+    _post(client, deployment["id"], _traffic())
+    client.post(f"{base}/live/flush")
+    _drain(worker)
+    counts = row_counts(engine)
+    assert counts["live_vehicle"] == 12 and counts["live_settled_detection"] > 0
+    assert client.delete(base).status_code == 204
+    counts = row_counts(engine)
+    assert counts["live_association"] == counts["live_vehicle"] == 0
+    assert counts["live_settled_detection"] == 0
+    assert_problem(client.get(f"{base}/vehicles"), 404)
