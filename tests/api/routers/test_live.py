@@ -120,6 +120,17 @@ def test_bad_requests_name_the_field_and_change_nothing(
     assert_problem(client.get(f"{unknown}/vehicles/stream"), 404)
 
 
+def _all_published(client: TestClient, deployment: str, worker: Worker) -> str:
+    """Start a live association, post its whole traffic, flush and step until it is done; the
+    deployment's path."""
+    base = f"/v1/deployments/{deployment}"
+    client.put(f"{base}/live", json={"lateness": 5})
+    _post(client, deployment, _traffic())
+    client.post(f"{base}/live/flush")
+    _drain(worker)
+    return base
+
+
 def _events(text: str) -> list[tuple[str, str]]:
     """(id, data) of every event of an SSE body."""
     found = []
@@ -133,11 +144,7 @@ def _events(text: str) -> list[tuple[str, str]]:
 def test_the_event_stream_resumes_after_last_event_id(
     client: TestClient, deployment: dict[str, Any], worker: Worker
 ) -> None:
-    base = f"/v1/deployments/{deployment['id']}"
-    client.put(f"{base}/live", json={"lateness": 5})
-    _post(client, deployment["id"], _traffic())
-    client.post(f"{base}/live/flush")
-    _drain(worker)
+    base = _all_published(client, deployment["id"], worker)
     whole = client.get(f"{base}/vehicles/stream?idle_timeout=0.2")
     assert whole.status_code == 200
     assert whole.headers["content-type"].startswith("text/event-stream")
@@ -153,11 +160,7 @@ def test_the_event_stream_resumes_after_last_event_id(
 def test_deleting_the_deployment_deletes_its_live_association(
     client: TestClient, deployment: dict[str, Any], worker: Worker, engine: Engine
 ) -> None:
-    base = f"/v1/deployments/{deployment['id']}"
-    client.put(f"{base}/live", json={"lateness": 5})
-    _post(client, deployment["id"], _traffic())
-    client.post(f"{base}/live/flush")
-    _drain(worker)
+    base = _all_published(client, deployment["id"], worker)
     counts = row_counts(engine)
     assert counts["live_vehicle"] == 12 and counts["live_settled_detection"] > 0
     assert client.delete(base).status_code == 204
