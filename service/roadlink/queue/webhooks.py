@@ -55,20 +55,14 @@ def record_job_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> int:
         .where(Job.id.in_(ids))
         .execution_options(populate_existing=True)
     ).all()
-    deployments = {job.deployment_id for job, _ in jobs}
-    hooks = session.scalars(select(Webhook).where(Webhook.deployment_id.in_(deployments))).all()
-    subscribed = [h for h in hooks if JOB_FINISHED in h.event_types]
+    subscribed = _subscribers(session, {job.deployment_id for job, _ in jobs}, JOB_FINISHED)
     if not subscribed:
         return 0
     now = _clock(session, None)
     count = 0
     for job, accuracy in jobs:
         data = {"job": _job_data(job, accuracy)}
-        event = _event(JOB_FINISHED, job.deployment_id, data)
-        for hook in subscribed:
-            if hook.deployment_id == job.deployment_id:
-                session.add(_delivery(hook.id, event, now))
-                count += 1
+        count += _add(session, subscribed, _event(JOB_FINISHED, job.deployment_id, data), now)
     session.flush()
     return count
 
@@ -78,20 +72,29 @@ def record_vehicles_published(session: Session, vehicles: list[LiveVehicle]) -> 
     subscribes, in the caller's transaction (the live step's, which publishes them, after they
     have their cursor). Returns how many."""
     deployments = {v.deployment_id for v in vehicles}
-    if not deployments:
+    subscribed = _subscribers(session, deployments, VEHICLE_PUBLISHED) if deployments else []
+    if not subscribed:
         return 0
-    hooks = session.scalars(select(Webhook).where(Webhook.deployment_id.in_(deployments))).all()
-    subscribed = [h for h in hooks if VEHICLE_PUBLISHED in h.event_types]
     now = _clock(session, None)
     count = 0
-    for vehicle in vehicles if subscribed else []:
+    for vehicle in vehicles:
         event = _event(VEHICLE_PUBLISHED, vehicle.deployment_id, {"vehicle": _vehicle(vehicle)})
-        for hook in subscribed:
-            if hook.deployment_id == vehicle.deployment_id:
-                session.add(_delivery(hook.id, event, now))
-                count += 1
+        count += _add(session, subscribed, event, now)
     session.flush()
     return count
+
+
+def _subscribers(session: Session, deployments: set[uuid.UUID], event_type: str) -> list[Webhook]:
+    """The webhooks of these deployments that receive `event_type`."""
+    hooks = session.scalars(select(Webhook).where(Webhook.deployment_id.in_(deployments))).all()
+    return [h for h in hooks if event_type in h.event_types]
+
+
+def _add(session: Session, subscribed: list[Webhook], event: Event, now: Any) -> int:
+    """One delivery of `event` to each subscribed webhook of its deployment; how many."""
+    mine = [h for h in subscribed if h.deployment_id == event.deployment_id]
+    session.add_all(_delivery(h.id, event, now) for h in mine)
+    return len(mine)
 
 
 def _vehicle(vehicle: LiveVehicle) -> dict[str, Any]:
@@ -125,6 +128,7 @@ class Event:
     id: uuid.UUID
     type: str
     body: str
+    deployment_id: uuid.UUID | None = None  # whose webhooks receive it (not needed to resend)
 
 
 def _event(event_type: str, deployment_id: uuid.UUID, data: dict[str, Any]) -> Event:
@@ -137,7 +141,7 @@ def _event(event_type: str, deployment_id: uuid.UUID, data: dict[str, Any]) -> E
         "deployment_id": str(deployment_id),
         "data": data,
     }
-    return Event(event_id, event_type, orjson.dumps(envelope).decode())
+    return Event(event_id, event_type, orjson.dumps(envelope).decode(), deployment_id)
 
 
 def _delivery(webhook_id: uuid.UUID, event: Event, now: Any) -> WebhookDelivery:
