@@ -34,6 +34,9 @@ from tests.databases import (
 from tests.helpers import MakeKey
 
 TABLES_CHILD_FIRST = (
+    "live_settled_detection",
+    "live_vehicle",
+    "live_association",
     "webhook_delivery",
     "webhook",
     "job_idempotency_key",

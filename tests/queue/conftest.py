@@ -1,4 +1,5 @@
-"""Helpers for queue tests: a deployment with one stored batch, and jobs over it."""
+"""Helpers for queue tests: a deployment with one stored batch, and jobs over it; a deployment
+for a live association."""
 
 from __future__ import annotations
 
@@ -21,6 +22,13 @@ from tests.queue import associators_for_tests
 @pytest.fixture
 def sessions(engine: Engine) -> sessionmaker[Session]:
     return make_session_factory(engine)
+
+
+@pytest.fixture
+def road(sessions: sessionmaker[Session]) -> uuid.UUID:
+    """A deployment without declared sensors (for a live association)."""
+    with transaction(sessions) as session:
+        return repository.create_deployment(session, name="live road", sensors=None).id
 
 
 @pytest.fixture

@@ -65,7 +65,9 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     directory = tmp_path_factory.mktemp("fuzz")
     # The rate limit would answer most generated requests with 429 (documented, but it tests
     # nothing else), so this server has none.
-    env = sqlite_env(directory, ROADLINK_RATE_LIMIT_PER_SECOND="0")
+    # A generated ?wait= or an event stream of a deployment it made holds its request up to
+    # the longest wait: one second keeps the run within its time.
+    env = sqlite_env(directory, ROADLINK_RATE_LIMIT_PER_SECOND="0", ROADLINK_MAX_WAIT_SECONDS="1")
     live = LiveServer(directory, env, free_port())
     key = roadlink("keys", "create", "--scope", "admin", env=env, cwd=directory).strip()
     live.start(workers=1)

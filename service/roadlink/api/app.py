@@ -32,6 +32,7 @@ from roadlink.api.routers import (
     deployments,
     health,
     jobs,
+    live,
     pages,
     simulations,
     webhooks,
@@ -107,7 +108,9 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
     app.add_middleware(ProblemsForEveryError)
     # Added last: the outermost layer, so that every answer (a problem included) has the id.
     app.add_middleware(RequestIdMiddleware)
-    protected = [m.router for m in (deployments, batches, jobs, associators, simulations, webhooks)]
+    protected = [
+        m.router for m in (deployments, batches, jobs, live, associators, simulations, webhooks)
+    ]
     check_policy_covers(protected)
     for router in protected:
         app.include_router(

@@ -134,6 +134,16 @@ POLICY: dict[tuple[str, str], Rule] = {
     # the job may hand that on, and the link dies with the key
     # (see service/roadlink/api/pagelinks.py).
     ("POST", "/v1/jobs/{job_id}/page-link"): _read_or_ingest(_job_deployment),
+    # A live association is an analyst's standing job: read keys run it, as they run jobs; its
+    # status and vehicles are read by whoever may read the deployment's results, and a
+    # gateway's ingest key may say its data has ended (flush).
+    ("PUT", "/v1/deployments/{deployment_id}/live"): READ,
+    ("DELETE", "/v1/deployments/{deployment_id}/live"): READ,
+    ("GET", "/v1/deployments/{deployment_id}/live"): _read_or_ingest(_path_deployment),
+    ("POST", "/v1/deployments/{deployment_id}/live/flush"): _read_or_ingest(_path_deployment),
+    ("GET", "/v1/deployments/{deployment_id}/live/plot"): _read_or_ingest(_path_deployment),
+    ("GET", "/v1/deployments/{deployment_id}/vehicles"): _read_or_ingest(_path_deployment),
+    ("GET", "/v1/deployments/{deployment_id}/vehicles/stream"): _read_or_ingest(_path_deployment),
     ("GET", "/v1/associators"): ANY_KEY,
     # A simulation writes synthetic detections into a deployment and runs Algorithm 1 in the
     # API process: an administrator's tool, not a gateway's or an analyst's.

@@ -93,10 +93,16 @@ def page_of(
     if len(found) <= limit:
         return items, None, None
     cursor = encode_cursor(kind, items[-1])
-    query = [(k, v) for k, v in request.query_params.multi_items() if k != "cursor"]
-    link = f"{request.url.path}?{urlencode([*query, ('cursor', cursor)])}"
+    return items, cursor, link_next(request, response, cursor)
+
+
+def link_next(request: Request, response: Response, cursor: str, parameter: str = "cursor") -> str:
+    """The next page's link, this request's path and query with `parameter` set to `cursor`,
+    also sent as a `Link` header."""
+    query = [(k, v) for k, v in request.query_params.multi_items() if k != parameter]
+    link = f"{request.url.path}?{urlencode([*query, (parameter, cursor)])}"
     response.headers["Link"] = f'<{link}>; rel="next"'
-    return items, cursor, link
+    return link
 
 
 LINK_HEADER = {

@@ -16,6 +16,7 @@ from roadlink.cli import (  # noqa: E402,F401
     analysis,
     backup,
     config,
+    follow,
     keys,
     locate,
     remote,

@@ -274,6 +274,93 @@ class JobIdempotencyKey(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
 
 
+class LiveAssociation(Base):
+    """A deployment's live association (issue 18): how it associates, where its data clock
+    stands, and who owns its next step. One row per deployment, kept when stopped so that a
+    restart continues its vehicle numbering and never publishes a detection twice."""
+
+    __tablename__ = "live_association"
+
+    deployment_id: Mapped[uuid.UUID] = mapped_column(
+        ForeignKey("deployment.id", ondelete="CASCADE"), primary_key=True
+    )
+    associator: Mapped[str] = mapped_column(String(100))
+    params: Mapped[dict[str, Any]] = mapped_column(JSON)
+    lateness: Mapped[float] = mapped_column(Float)
+    active: Mapped[bool] = mapped_column(default=True)
+    # The newest detection timestamp received (None before the first batch).
+    data_clock: Mapped[float | None] = mapped_column(Float)
+    # The farthest sensor position seen: where every vehicle leaves the road.
+    road_end: Mapped[float | None] = mapped_column(Float)
+    # Batches stored since it started, and how many of them the last step had seen: a step is
+    # due while they differ (a late batch changes no clock but must still be associated).
+    received: Mapped[int] = mapped_column(Integer, default=0)
+    processed: Mapped[int] = mapped_column(Integer, default=0)
+    # Flushes asked for and done: a flush is due while they differ.
+    flush_requested: Mapped[int] = mapped_column(Integer, default=0)
+    flushed: Mapped[int] = mapped_column(Integer, default=0)
+    # Every detection older than `floor` is settled (published, left unassigned, or late).
+    floor: Mapped[float | None] = mapped_column(Float)
+    # The data clock the last step ran at, and what it left open.
+    step_clock: Mapped[float | None] = mapped_column(Float)
+    open_tracks: Mapped[int] = mapped_column(Integer, default=0)
+    open_detections: Mapped[int] = mapped_column(Integer, default=0)
+    next_vehicle: Mapped[int] = mapped_column(Integer, default=1)
+    vehicles_published: Mapped[int] = mapped_column(Integer, default=0)
+    late_detections: Mapped[int] = mapped_column(Integer, default=0)
+    lease_owner: Mapped[str | None] = mapped_column(String(200))
+    lease_expires_at: Mapped[datetime | None] = mapped_column()
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    last_step_at: Mapped[datetime | None] = mapped_column()
+
+
+class LiveVehicle(Base):
+    """A vehicle the live association published; `seq` is the feed's cursor."""
+
+    __tablename__ = "live_vehicle"
+    __table_args__ = (
+        UniqueConstraint(
+            "deployment_id", "vehicle_id", "revision", name="uq_live_vehicle_revision"
+        ),
+        Index("ix_live_vehicle_deployment_id_seq", "deployment_id", "seq"),
+    )
+
+    seq: Mapped[int] = mapped_column(DetectionKey, primary_key=True, autoincrement=True)
+    deployment_id: Mapped[uuid.UUID] = mapped_column(
+        ForeignKey("deployment.id", ondelete="CASCADE")
+    )
+    vehicle_id: Mapped[str] = mapped_column(String(40))
+    revision: Mapped[int] = mapped_column(Integer)
+    final: Mapped[bool] = mapped_column()
+    confidence: Mapped[float | None] = mapped_column(Float)
+    first_timestamp: Mapped[float] = mapped_column(Float)
+    last_timestamp: Mapped[float] = mapped_column(Float)
+    n_detections: Mapped[int] = mapped_column(Integer)
+    detections_json: Mapped[str] = mapped_column(Text)
+    published_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class LiveSettledDetection(Base):
+    """A detection the live association is done with: in a published vehicle (`vehicle_seq`),
+    or left unassigned or late (NULL). Later windows leave these out."""
+
+    __tablename__ = "live_settled_detection"
+    __table_args__ = (
+        Index("ix_live_settled_detection_deployment_id_timestamp", "deployment_id", "timestamp"),
+    )
+
+    deployment_id: Mapped[uuid.UUID] = mapped_column(
+        ForeignKey("deployment.id", ondelete="CASCADE"), primary_key=True
+    )
+    batch_id: Mapped[uuid.UUID] = mapped_column(
+        ForeignKey("batch.id", ondelete="CASCADE"), primary_key=True
+    )
+    row: Mapped[int] = mapped_column(Integer, primary_key=True)
+    timestamp: Mapped[float] = mapped_column(Float)
+    vehicle_seq: Mapped[int | None] = mapped_column(DetectionKey)
+    late: Mapped[bool] = mapped_column(default=False)
+
+
 class Webhook(Base):
     """An HTTPS endpoint of a deployment's that receives its events (`event_types`), signed with
     `secret` (kept in clear: the service signs with it; shown to the caller once, at creation)."""

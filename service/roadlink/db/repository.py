@@ -5,9 +5,11 @@ from __future__ import annotations
 import itertools
 import uuid
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import orjson
 from sqlalchemy import func, select, type_coerce
 from sqlalchemy.orm import Session
@@ -138,20 +140,7 @@ def load_detections(
     d1, d2, ...), every id is qualified as `<batch_id>:<detection_id>` to keep them distinct.
     """
     query = (
-        select(
-            Detection.position,
-            Detection.velocity,
-            Detection.timestamp,
-            Detection.sensor_id,
-            Detection.detection_id,
-            Detection.target,
-            # The batch id as the driver returns it: converting it to a UUID on every row cost
-            # more than reading the rows. The few distinct values are converted below.
-            type_coerce(Detection.batch_id, NullType()),
-            Detection.lane,
-            Detection.length,
-            Detection.vehicle_class,
-        )
+        select(*_detection_columns())
         .join(Batch, Batch.id == Detection.batch_id)
         .where(_selects(deployment_id, selection))
         .order_by(Batch.created_at, Batch.id, Detection.row)
@@ -170,6 +159,28 @@ def load_detections(
             [f"{batch_key[b]}:{d}" for b, d in zip(columns[6], detection_ids, strict=True)],
             dtype=object,
         )
+    return _detections_of(columns, n, detection_ids)
+
+
+def _detection_columns() -> tuple[Any, ...]:
+    """The columns a `Detections` is read from, in the order `_detections_of` takes them."""
+    return (
+        Detection.position,
+        Detection.velocity,
+        Detection.timestamp,
+        Detection.sensor_id,
+        Detection.detection_id,
+        Detection.target,
+        # The batch id as the driver returns it: converting it to a UUID on every row cost
+        # more than reading the rows. The few distinct values are converted by the caller.
+        type_coerce(Detection.batch_id, NullType()),
+        Detection.lane,
+        Detection.length,
+        Detection.vehicle_class,
+    )
+
+
+def _detections_of(columns: list[Any], n: int, detection_ids: Any) -> Detections:
     return Detections(
         position=np.array(columns[0], dtype=np.float64).reshape(n),
         velocity=np.array(columns[1], dtype=np.float64).reshape(n),
@@ -262,3 +273,43 @@ def job_duration_histogram(
     ).one()
     values = list(row)
     return [int(v or 0) for v in values[:-2]], int(values[-2] or 0), float(values[-1] or 0.0)
+
+
+@dataclass(frozen=True)
+class KeyedDetections:
+    """Detections with the key of each one's row (its batch id, as text, and its row number),
+    which stays the same whatever window reads it. `detections.detection_id` is made unique
+    as `<batch_id>:<row>`; `detection_ids` are the ids their senders gave."""
+
+    detections: Detections
+    batch_ids: npt.NDArray[np.object_]
+    rows: npt.NDArray[np.int64]
+    detection_ids: npt.NDArray[np.object_]
+
+
+def load_detection_window(
+    session: Session, *, deployment_id: uuid.UUID, start: float | None, end: float | None
+) -> KeyedDetections:
+    """A deployment's detections with start <= timestamp <= end (None: open), with their keys,
+    in time order: the live association's window (`roadlink.queue.live_step`)."""
+    condition = Detection.deployment_id == deployment_id
+    if start is not None:
+        condition &= Detection.timestamp >= start
+    if end is not None:
+        condition &= Detection.timestamp <= end
+    query = (
+        select(*_detection_columns(), Detection.row)
+        .where(condition)
+        .order_by(Detection.timestamp, Detection.batch_id, Detection.row)
+    )
+    rows = list(session.connection().execute(query).all())
+    n = len(rows)
+    columns = list(zip(*rows, strict=True)) if rows else [()] * 11
+    batch_key = {key: str(uuid.UUID(str(key))) for key in set(columns[6])}
+    batch_ids = np.array([batch_key[b] for b in columns[6]], dtype=object).reshape(n)
+    row_numbers = np.array(columns[10], dtype=np.int64).reshape(n)
+    keys = np.array([f"{b}:{r}" for b, r in zip(batch_ids, row_numbers, strict=True)], object)
+    detections = _detections_of(columns, n, keys.reshape(n))
+    return KeyedDetections(
+        detections, batch_ids, row_numbers, np.array(columns[4], dtype=object).reshape(n)
+    )

@@ -20,14 +20,18 @@ from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from roadlink.db.drivers import driver_of
-from roadlink.db.models import Job, JobResult, Webhook, WebhookDelivery, utcnow
+from roadlink.db.live_records import vehicle_document
+from roadlink.db.models import Job, JobResult, LiveVehicle, Webhook, WebhookDelivery, utcnow
 
 JOB_FINISHED = "job.finished"
 """A job succeeded, failed or was cancelled."""
 
-EVENT_TYPES = (JOB_FINISHED,)
+VEHICLE_PUBLISHED = "vehicle.published"
+"""A live association published a vehicle (final: it will not change)."""
+
+EVENT_TYPES = (JOB_FINISHED, VEHICLE_PUBLISHED)
 """Every event type a webhook may subscribe to. Types are `<resource>.<what happened>`, so that
-new ones (the live association's `vehicle.*` events) are added here without changing old ones."""
+new ones are added here without changing old ones."""
 
 PENDING, DELIVERED, FAILED = "pending", "delivered", "failed"
 """A delivery's states: due for an attempt (now or after a backoff), answered with a 2xx, or out
@@ -51,22 +55,55 @@ def record_job_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> int:
         .where(Job.id.in_(ids))
         .execution_options(populate_existing=True)
     ).all()
-    deployments = {job.deployment_id for job, _ in jobs}
-    hooks = session.scalars(select(Webhook).where(Webhook.deployment_id.in_(deployments))).all()
-    subscribed = [h for h in hooks if JOB_FINISHED in h.event_types]
+    subscribed = _subscribers(session, {job.deployment_id for job, _ in jobs}, JOB_FINISHED)
     if not subscribed:
         return 0
     now = _clock(session, None)
     count = 0
     for job, accuracy in jobs:
         data = {"job": _job_data(job, accuracy)}
-        event = _event(JOB_FINISHED, job.deployment_id, data)
-        for hook in subscribed:
-            if hook.deployment_id == job.deployment_id:
-                session.add(_delivery(hook.id, event, now))
-                count += 1
+        count += _add(session, subscribed, _event(JOB_FINISHED, job.deployment_id, data), now)
     session.flush()
     return count
+
+
+def record_vehicles_published(session: Session, vehicles: list[LiveVehicle]) -> int:
+    """Add a `vehicle.published` delivery per vehicle for each webhook of its deployment that
+    subscribes, in the caller's transaction (the live step's, which publishes them, after they
+    have their cursor). Returns how many."""
+    deployments = {v.deployment_id for v in vehicles}
+    subscribed = _subscribers(session, deployments, VEHICLE_PUBLISHED) if deployments else []
+    if not subscribed:
+        return 0
+    now = _clock(session, None)
+    count = 0
+    for vehicle in vehicles:
+        event = _event(VEHICLE_PUBLISHED, vehicle.deployment_id, {"vehicle": _vehicle(vehicle)})
+        count += _add(session, subscribed, event, now)
+    session.flush()
+    return count
+
+
+def _subscribers(session: Session, deployments: set[uuid.UUID], event_type: str) -> list[Webhook]:
+    """The webhooks of these deployments that receive `event_type`."""
+    hooks = session.scalars(select(Webhook).where(Webhook.deployment_id.in_(deployments))).all()
+    return [h for h in hooks if event_type in h.event_types]
+
+
+def _add(session: Session, subscribed: list[Webhook], event: Event, now: Any) -> int:
+    """One delivery of `event` to each subscribed webhook of its deployment; how many."""
+    mine = [h for h in subscribed if h.deployment_id == event.deployment_id]
+    session.add_all(_delivery(h.id, event, now) for h in mine)
+    return len(mine)
+
+
+def _vehicle(vehicle: LiveVehicle) -> dict[str, Any]:
+    """The vehicle as the deployment's feed shows it (GET .../vehicles), and where that is."""
+    feed = f"/v1/deployments/{vehicle.deployment_id}/vehicles"
+    return {
+        **vehicle_document(vehicle),
+        "links": {"feed": f"{feed}?after={vehicle.seq - 1}", "stream": f"{feed}/stream"},
+    }
 
 
 def _job_data(job: Job, accuracy: float | None) -> dict[str, Any]:
@@ -91,6 +128,7 @@ class Event:
     id: uuid.UUID
     type: str
     body: str
+    deployment_id: uuid.UUID | None = None  # whose webhooks receive it (not needed to resend)
 
 
 def _event(event_type: str, deployment_id: uuid.UUID, data: dict[str, Any]) -> Event:
@@ -103,7 +141,7 @@ def _event(event_type: str, deployment_id: uuid.UUID, data: dict[str, Any]) -> E
         "deployment_id": str(deployment_id),
         "data": data,
     }
-    return Event(event_id, event_type, orjson.dumps(envelope).decode())
+    return Event(event_id, event_type, orjson.dumps(envelope).decode(), deployment_id)
 
 
 def _delivery(webhook_id: uuid.UUID, event: Event, now: Any) -> WebhookDelivery:

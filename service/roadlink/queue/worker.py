@@ -19,6 +19,7 @@ import uuid
 from sqlalchemy import Engine
 
 from roadlink.db.engine import make_engine, make_session_factory, transaction
+from roadlink.db.live_records import has_live_step, release_live_leases
 from roadlink.db.repository import load_detections
 from roadlink.logs import configure_logging, log_context
 from roadlink.queue.associator_process import (
@@ -30,6 +31,7 @@ from roadlink.queue.associator_process import (
     TimedOut,
 )
 from roadlink.queue.housekeeping import Housekeeping
+from roadlink.queue.live_step import run_live_step
 from roadlink.queue.liveness import HeartbeatFile
 from roadlink.queue.transitions import (
     ClaimedJob,
@@ -74,6 +76,7 @@ class Worker:
                     wakeup.wait(self.settings.poll_seconds)
         finally:
             wakeup.close()
+            self._release_live_leases()
             housekeeping.join(self.settings.webhook_timeout_seconds + 5)
             self.liveness.remove()
             log.info("worker %s stopped", self.id)
@@ -83,8 +86,35 @@ class Worker:
         self.associator_process.close()
 
     def run_once(self) -> bool:
-        """Rescue expired leases when due, then claim and run one job; False if none was queued."""
+        """Rescue expired leases when due, take a live association's step when one is due, then
+        claim and run one job; False if there was nothing to do."""
         self._rescue_when_due()
+        stepped = self.run_live_once()
+        return self.run_job_once() or stepped
+
+    def run_live_once(self) -> bool:
+        """Take one due step of a live association (issue 18); False if none was due."""
+        with self.sessions() as session:
+            if not has_live_step(session, worker_id=self.id):
+                return False
+        try:
+            return run_live_step(
+                self.sessions, worker_id=self.id, lease_seconds=self.settings.lease_seconds
+            )
+        except Exception:  # the database went away: the next round tries again
+            log.exception("a live association step failed")
+            return False
+
+    def _release_live_leases(self) -> None:
+        """Hand this worker's live associations to the others at once, not at lease expiry."""
+        try:
+            with transaction(self.sessions) as session:
+                release_live_leases(session, worker_id=self.id)
+        except Exception:  # stopping anyway: the leases expire
+            log.exception("could not release the live leases")
+
+    def run_job_once(self) -> bool:
+        """Claim and run one job; False if none was queued."""
         with self.sessions() as session:
             if not has_runnable_job(session):
                 return False

@@ -14,6 +14,7 @@ from roadlink.association.detections import Detections
 from roadlink.db import repository
 from roadlink.db.idempotency_records import find_batch_idempotency_key
 from roadlink.db.json_columns import BatchSelection
+from roadlink.db.live_records import note_batch
 from roadlink.db.models import Batch, Deployment, Job
 from roadlink.queue.transitions import enqueue_job
 from roadlink.services.deployments import require_deployment
@@ -93,7 +94,7 @@ def store_batch(
             max_attempts=settings.max_attempts,
         )
         job_id = job.id
-    return repository.insert_batch(
+    stored = repository.insert_batch(
         session,
         batch_id=batch_id,
         deployment_id=deployment_id,
@@ -104,6 +105,14 @@ def store_batch(
         request_sha256=None if idempotent is None else idempotent.digest,
         job_id=job_id,
     )
+    # The deployment's live association, if one runs, takes the batch at its next step.
+    note_batch(
+        session,
+        deployment_id=deployment_id,
+        timestamps=batch.detections.timestamp,
+        last_position=float(batch.detections.position.max()),
+    )
+    return stored
 
 
 def batch_job(session: Session, batch: Batch) -> Job | None:

@@ -12,10 +12,12 @@ from pydantic import BaseModel, ConfigDict, Field, computed_field
 from roadlink.api.schemas.examples import EXAMPLE_ID
 
 # Every event type (roadlink.queue.webhooks.EVENT_TYPES; a test keeps the two the same).
-EventType = Literal["job.finished"]
+EventType = Literal["job.finished", "vehicle.published"]
 
 
-def _every_event_type() -> list[EventType]:
+def _default_event_types() -> list[EventType]:
+    # Not vehicle.published: one event per vehicle of a live association is many requests, for
+    # whoever asks for them.
     return ["job.finished"]
 
 
@@ -36,9 +38,10 @@ class WebhookCreate(BaseModel):
         "unless ROADLINK_WEBHOOK_ALLOW_HTTP).",
     )
     event_types: list[EventType] = Field(
-        default_factory=_every_event_type,
+        default_factory=_default_event_types,
         min_length=1,
-        description="The events it receives.",
+        description="The events it receives (default: job.finished; vehicle.published, one "
+        "event per vehicle a live association publishes, only when asked for).",
     )
     description: str | None = Field(default=None, max_length=200, description="For people.")
 
