@@ -23,7 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from roadlink.association.associators.assignment.features import LENGTH_BIN, FeatureModel
+from roadlink.association.associators.assignment.features import (
+    FeatureModel,
+    length_density_at,
+)
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.detections import NO_LANE, FloatArray, IntArray
@@ -163,12 +166,7 @@ def _length_gain(
     difference of `spread`), against b any vehicle that b's sensor sees (its length density)."""
     difference = log_length[b][None, :] - log_length[a][:, None]
     same = -0.5 * (difference / spread) ** 2 - np.log(spread * np.sqrt(2.0 * np.pi))
-    bins = np.clip(
-        np.round((log_length[b] - features.length_grid[0]) / LENGTH_BIN).astype(np.int64),
-        0,
-        features.length_grid.size - 1,
-    )
-    density = features.length_density[sensor_b, bins]
+    density = length_density_at(features, sensor_b, log_length[b])
     gain: FloatArray = same - np.log(density)[None, :]
     return gain
 

@@ -217,14 +217,23 @@ def _length_cost(
     variance = model.length_spread**2 * (1.0 / before_count + 1.0 / after_count)
     difference = after_mean - before_mean
     log_same = -0.5 * difference**2 / variance - 0.5 * np.log(2.0 * np.pi * variance)
+    log_other = np.log(length_density_at(model, q, after_mean))
+    ratio = np.logaddexp(np.log1p(-LENGTH_OUTLIER) + log_same - log_other, np.log(LENGTH_OUTLIER))
+    return np.asarray(-2.0 * ratio, dtype=np.float64)
+
+
+def length_density_at(
+    model: FeatureModel, sensor: IntArray | int, log_length: FloatArray
+) -> FloatArray:
+    """How densely `sensor`'s log lengths lie at each of `log_length` (the learned kernel
+    density, read at the nearest bin of its grid)."""
     bins = np.clip(
-        np.round((after_mean - model.length_grid[0]) / LENGTH_BIN).astype(np.int64),
+        np.round((log_length - model.length_grid[0]) / LENGTH_BIN).astype(np.int64),
         0,
         model.length_grid.size - 1,
     )
-    log_other = np.log(model.length_density[q, bins])
-    ratio = np.logaddexp(np.log1p(-LENGTH_OUTLIER) + log_same - log_other, np.log(LENGTH_OUTLIER))
-    return np.asarray(-2.0 * ratio, dtype=np.float64)
+    density: FloatArray = model.length_density[sensor, bins]
+    return density
 
 
 def _shares(values: IntArray, sensor: IntArray, n_sensors: int, n_values: int) -> FloatArray:
