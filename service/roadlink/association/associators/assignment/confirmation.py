@@ -7,6 +7,7 @@ import numpy as np
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
+from roadlink.association.associators.assignment.pace import incoming_pace
 from roadlink.association.associators.assignment.params import (
     LONGEST_TRAVEL_SPREADS,
     AssignmentParams,
@@ -85,6 +86,11 @@ def track_evidence(
         before.length_mean = prefix_sums((value * weight)[chain])[linked] / np.maximum(
             before.length_count, 1.0
         )
+    if model.pace is not None:
+        # Costed as the forward pass saw it: against the link into a, not yet the one out of b.
+        prv = np.full(s.time.size, -1, dtype=np.int64)
+        prv[b] = a
+        before.pace = incoming_pace(model.pace, s, prv, a)
     pairs = Pairs.between(s, model, params, a, b)
     saving = params.gate_cost - link_cost(params, model, pairs, before, after, s)
     evidence = np.bincount(ids[linked], weights=np.maximum(saving, 0.0), minlength=ids.max() + 1)

@@ -9,6 +9,7 @@ import numpy as np
 from roadlink.association.associators.assignment.features import feature_cost
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
+from roadlink.association.associators.assignment.pace import Neighbour, pace_cost
 from roadlink.association.associators.assignment.params import AssignmentParams
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.detections import FloatArray
@@ -17,12 +18,16 @@ from roadlink.association.detections import FloatArray
 @dataclass
 class Level:
     """Mean relative speed of some track pieces, and how many detections each mean is over; where
-    detectors measure length, the pieces' mean log length and number of length readings."""
+    detectors measure length, the pieces' mean log length and number of length readings; the
+    pace of each piece's link next to the one costed (`pace.incoming_pace` of a piece that ends
+    in a, `pace.outgoing_pace` of one that starts with b; NaN where it has none, None when no
+    piece has one)."""
 
     mean: FloatArray
     count: FloatArray
     length_mean: FloatArray | None = None
     length_count: FloatArray | None = None
+    pace: Neighbour | None = None
 
 
 def link_cost(
@@ -54,6 +59,15 @@ def link_cost(
         + params.preferred_speed_weight * model.level_tails.cost(r_level)
         + params.miss_cost * (pairs.span - 1)
     )
+    if model.pace is not None and params.pace_weight > 0:
+        cost += params.pace_weight * pace_cost(
+            model.pace,
+            s,
+            pairs,
+            Neighbour.unknown(pairs.a.size) if before.pace is None else before.pace,
+            Neighbour.unknown(pairs.a.size) if after.pace is None else after.pace,
+            params.timestamp_noise,
+        )
     if s.features is None or model.features is None or params.feature_weight == 0:
         return cost
     lengths = (

@@ -11,6 +11,7 @@ import numpy as np
 from roadlink.association.associators.assignment.features import learn_features
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel, Tails
+from roadlink.association.associators.assignment.pace import learn_pace
 from roadlink.association.associators.assignment.params import (
     CONFIDENT_TRACK_LENGTH,
     MIN_RELATIVE_SPREAD,
@@ -63,6 +64,10 @@ def learn_segments(
     np.maximum(model.time_spread, MIN_RELATIVE_SPREAD, out=model.time_spread)
     np.maximum(model.speed_spread, MIN_RELATIVE_SPREAD, out=model.speed_spread)
     learn_tails(s, params, model, links, deviation)
+    prv = np.full(s.time.size, -1, dtype=np.int64)
+    same = track[chain[1:]] == track[chain[:-1]]
+    prv[chain[1:][same]] = chain[:-1][same]
+    model.pace = learn_pace(s, params, model, links, prv)
     if s.features is not None and prior.features is not None:
         model.features = learn_features(s.features, s.sensor, prior.features, links)
     return model

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -20,6 +21,9 @@ from roadlink.association.associators.assignment.params import (
     TAIL_WEIGHT_RANGE,
 )
 from roadlink.association.detections import FloatArray, IntArray
+
+if TYPE_CHECKING:
+    from roadlink.association.associators.assignment.pace import PaceModel
 
 BoolArray = npt.NDArray[np.bool_]
 
@@ -155,7 +159,8 @@ class SegmentModel:
     end's speed says less about the travel time and the learned skew moves away from it. The
     spread of a track's speed about its own pace is one number for the road, as are the tails
     of the three residuals. Where detectors report lane, length or class, `features` is what
-    they say (`features.FeatureModel`).
+    they say (`features.FeatureModel`). Once learned from tracks, `pace` is how a track's pace,
+    read from its travel times, carries from one link to the next (`pace.PaceModel`).
     """
 
     log_bias: FloatArray
@@ -168,6 +173,7 @@ class SegmentModel:
     speed_tails: Tails
     level_tails: Tails
     features: FeatureModel | None = None
+    pace: PaceModel | None = None
 
     @property
     def max_span(self) -> int:
@@ -186,4 +192,5 @@ class SegmentModel:
             self.speed_tails,
             self.level_tails,
             None if self.features is None else self.features.copy(),
+            None if self.pace is None else self.pace.copy(),
         )

@@ -70,6 +70,13 @@ REFINE_GATE_FACTOR = 2.0
 CONFIDENT_TRACK_LENGTH = 3
 # A learned spread is never trusted below this: sensors measure to a per cent at best.
 MIN_RELATIVE_SPREAD = 0.01
+# A track's pace read from its travel times (`pace`) holds to a few tenths of a per cent from one
+# link to the next in flowing traffic (SUMO: 0.5-0.8 %), so its spread has a floor of its own;
+# the timestamps' own error widens it where travel times are short.
+MIN_PACE_SPREAD = 0.01
+# The pace term weighs nothing where the speed readings' error (learned from the tracks) is below
+# the first number, and in full above the second.
+PACE_READING_ERROR = (0.015, 0.03)
 # The skew is searched in [0, 1] in this many steps, on an even sample of this many links, from
 # this many links on; it must beat the symmetric prediction's spread by this many sampling
 # errors (each 1 / sqrt(links)).
@@ -162,6 +169,17 @@ class AssignmentParams(AssociatorParams):
         "to each sensor's typical speed): drivers keep their own pace, which separates targets "
         "whose speeds cross while they overtake; but in car-following traffic the car in front "
         "sets the pace. Higher trusts a driver's own pace more.",
+    )
+    pace_weight: float = Field(
+        default=1.0,
+        ge=0,
+        le=10,
+        description="Weight of the penalty on a link whose pace (time per metre, relative to its "
+        "segment's typical) departs from the pace of the track's link before it, or after it. "
+        "Timestamps are exact where speed readings are not, and drivers hold their pace, so in "
+        "flowing traffic this tells neighbouring vehicles apart even when speeds are read with a "
+        "5-10 % error; its spread is learned from the tracks, so it weighs little in queues. "
+        "0 ignores it.",
     )
     preferred_speed_memory: float = Field(
         default=3.0,

@@ -11,6 +11,7 @@ from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.gating import Pairs, gated_pairs
 from roadlink.association.associators.assignment.matching import chosen_marginals, match
 from roadlink.association.associators.assignment.model import SegmentModel
+from roadlink.association.associators.assignment.pace import incoming_pace, outgoing_pace
 from roadlink.association.associators.assignment.params import (
     REFINE_GATE_FACTOR,
     AssignmentParams,
@@ -66,7 +67,8 @@ def refine_boundaries(
         if ends is None:
             continue
         tails, pairs = ends
-        cost = boundary_cost(params, model, pairs, levels, s) - anchor_bonus(pairs, anchor)
+        cost = boundary_cost(params, model, pairs, levels, s, (nxt, prv))
+        cost -= anchor_bonus(pairs, anchor)
         if relink:
             # Splitting a track costs more here than declining a link did: a track the forward
             # pass built is evidence in itself, so re-pairing must pay for itself.
@@ -112,14 +114,24 @@ class Summed:
 
 
 def boundary_cost(
-    params: AssignmentParams, model: SegmentModel, pairs: Pairs, levels: list[Summed], s: Sensors
+    params: AssignmentParams,
+    model: SegmentModel,
+    pairs: Pairs,
+    levels: list[Summed],
+    s: Sensors,
+    links: tuple[IntArray, IntArray],
 ) -> FloatArray:
     """Cost of joining the prefix ending in each pair's a to the suffix starting with its b,
-    given the prefix and suffix sums of each level term (`level_terms`)."""
+    given the prefix and suffix sums of each level term (`level_terms`) and the tracks' links
+    (`nxt`, `prv`: the paces of the prefix's last link and the suffix's first)."""
     a, b = pairs.a, pairs.b
+    nxt, prv = links
     speed = levels[0]
     before = Level(speed.head_sum[a] / speed.head_count[a], speed.head_count[a])
     after = Level(speed.tail_sum[b] / speed.tail_count[b], speed.tail_count[b])
+    if model.pace is not None:
+        before.pace = incoming_pace(model.pace, s, prv, a)
+        after.pace = outgoing_pace(model.pace, s, nxt, b)
     if len(levels) > 1:
         length = levels[1]
         before.length_count = length.head_count[a]

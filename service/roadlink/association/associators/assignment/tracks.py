@@ -13,6 +13,7 @@ from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.gating import gated_pairs
 from roadlink.association.associators.assignment.matching import match
 from roadlink.association.associators.assignment.model import SegmentModel
+from roadlink.association.associators.assignment.pace import Neighbour, PaceModel
 from roadlink.association.associators.assignment.params import AssignmentParams
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.associators.base import Progress
@@ -25,20 +26,32 @@ BoolArray = npt.NDArray[np.bool_]
 class TrackLevel:
     """Per detection: mean relative speed of its track up to and including it, and how many
     detections that mean is over; where detectors measure length, the same of its log lengths
-    (a detection without a reading keeps its predecessor's)."""
+    (a detection without a reading keeps its predecessor's); the pace of the link into it (NaN
+    where it starts its track, or while no pace is learned: `pace.Neighbour`)."""
 
     mean: FloatArray
     count: FloatArray
+    pace: Neighbour
     length_mean: FloatArray | None = None
     length_count: FloatArray | None = None
 
     @classmethod
     def start(cls, s: Sensors) -> TrackLevel:
         alone = detection_level(s, np.arange(s.time.size))
-        return cls(alone.mean, alone.count, alone.length_mean, alone.length_count)
+        return cls(
+            alone.mean,
+            alone.count,
+            Neighbour.unknown(s.time.size),
+            alone.length_mean,
+            alone.length_count,
+        )
 
-    def extend(self, s: Sensors, a: IntArray, b: IntArray) -> None:
+    def extend(self, s: Sensors, a: IntArray, b: IntArray, pace: PaceModel | None) -> None:
         """Detection b continues the track that ends in detection a."""
+        if pace is not None:
+            self.pace.pace[b] = pace.of(s, a, b)
+            self.pace.speed[b] = s.log_speed[a]
+            self.pace.travel[b] = s.time[b] - s.time[a]
         count = self.count[a] + 1.0
         self.mean[b] = self.mean[a] + (s.relative_speed[b] - self.mean[a]) / count
         self.count[b] = count
@@ -57,6 +70,7 @@ class TrackLevel:
             self.count[a],
             None if self.length_mean is None else self.length_mean[a],
             None if self.length_count is None else self.length_count[a],
+            self.pace.take(a),
         )
 
 
@@ -153,7 +167,7 @@ def _extend_tracks(
     cost = link_cost(params, model, pairs, level.of(a), detection_level(s, b), s)
     cost -= anchor_bonus(pairs, anchor)
     linked_a, linked_b = match(a, b, cost, params.gate_cost)
-    level.extend(s, linked_a, linked_b)
+    level.extend(s, linked_a, linked_b, model.pace)
     track[linked_b] = track[linked_a]
     tail[track[linked_b]] = linked_b
     return linked_b
