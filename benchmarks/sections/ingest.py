@@ -7,6 +7,9 @@ csv module) and write the same rows in one committed transaction into a plain ta
 the detection's columns and its row number, with no key, no secondary index and no foreign key.
 On SQLite with sqlite3 `executemany` and the service's PRAGMAs (WAL, its `synchronous`); on
 PostgreSQL with psycopg 3's `COPY ... FROM STDIN`. Goal: the service reaches at least 40% of it.
+
+The same batch with the three detector features (lane, length, vehicle class) is posted in the
+same loop: its time against the batch without them, goal at most 1.15 (issue 17).
 """
 
 from __future__ import annotations
@@ -33,9 +36,12 @@ from benchmarks.scaleout import fresh_database, postgres_answers
 from roadlink.association.csvio import write_detections_csv
 from roadlink.association.detections import Detections
 from roadlink.settings import Settings
+from tests.helpers import with_features
 
 NAME = "ingest"
 GOAL_SHARE = 0.40
+GOAL_FEATURES = 1.15
+FEATURED = " + features"  # the suffix of a payload's kind that carries lane, length and class
 
 
 @dataclass(frozen=True)
@@ -143,10 +149,14 @@ PARSERS: dict[str, Callable[[bytes], Rows]] = {"json": json_rows, "csv": csv_row
 
 
 def bodies(detections: Detections) -> dict[str, tuple[bytes, str]]:
-    """The same detections as a JSON and as a CSV body, with their content types."""
+    """The same detections as a JSON and as a CSV body, with their content types, each also
+    with lane, length and vehicle class (`tests.helpers.with_features`)."""
+    featured = with_features(detections)
     return {
         "json": (orjson.dumps(json_batch(detections)), "application/json"),
         "csv": (write_detections_csv(detections).encode(), "text/csv"),
+        "json" + FEATURED: (orjson.dumps(json_batch(featured)), "application/json"),
+        "csv" + FEATURED: (write_detections_csv(featured).encode(), "text/csv"),
     }
 
 
@@ -169,10 +179,10 @@ def measure_both(
     payloads: dict[str, tuple[bytes, str]], repeats: int, backend: str, directory: Path
 ) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
     """Seconds per repeat, of the service (sending each body until its 201) and of the limit
-    (parsing it and writing its rows in one committed transaction), interleaved so that both
-    see the same load on a shared machine."""
+    (parsing it and writing its rows in one committed transaction; for the bodies without
+    features), interleaved so that both see the same load on a shared machine."""
     service_runs: dict[str, list[float]] = {kind: [] for kind in payloads}
-    limit_runs: dict[str, list[float]] = {kind: [] for kind in payloads}
+    limit_runs: dict[str, list[float]] = {kind: [] for kind in payloads if kind in PARSERS}
     # No workers: nothing here runs jobs, and idle workers would only share the CPU.
     with (
         databases(backend, directory) as (url, plain),
@@ -189,9 +199,10 @@ def measure_both(
                 response = client.post(url, content=body, headers={"content-type": content_type})
                 service_runs[kind].append(time.perf_counter() - start)
                 checked(response)
-                start = time.perf_counter()
-                plain.store(PARSERS[kind](body))
-                limit_runs[kind].append(time.perf_counter() - start)
+                if kind in PARSERS:
+                    start = time.perf_counter()
+                    plain.store(PARSERS[kind](body))
+                    limit_runs[kind].append(time.perf_counter() - start)
     return service_runs, limit_runs
 
 
@@ -223,11 +234,39 @@ def measure_ingest(plan: IngestPlan) -> Section:
             Column("goal >= 40%"),
         ],
     )
+    features = Table(
+        "The same batch with lane, length and class, beside it without them",
+        [
+            Column("database"),
+            Column("format"),
+            Column("body MiB", "text"),
+            Column("service seconds", "seconds"),
+            Column("without features", "seconds"),
+            Column("with / without", "text"),
+            Column("goal <= 1.15"),
+        ],
+    )
     ratios: dict[str, float] = {}
     for backend in backends:
         with tempfile.TemporaryDirectory(prefix="roadlink-limit-") as scratch:
             service_runs, limit_runs = measure_both(payloads, plan.repeats, backend, Path(scratch))
-        for kind, (body, _) in payloads.items():
+        for kind in limit_runs:
+            body = payloads[kind + FEATURED][0]
+            featured = Sample.of(service_runs[kind + FEATURED])
+            plain_kind = Sample.of(service_runs[kind])
+            slower = featured.median / plain_kind.median
+            ratios[f"{backend}/{kind}{FEATURED}"] = slower
+            features.add(
+                backend,
+                kind,
+                f"{len(body) / 2**20:.1f}",
+                featured,
+                plain_kind,
+                f"{slower:.2f}",
+                "met" if slower <= GOAL_FEATURES else "missed",
+            )
+        for kind in limit_runs:
+            body = payloads[kind][0]
             service = Sample.of(service_runs[kind])
             limit = Sample.of(limit_runs[kind])
             ratio = limit.median / service.median
@@ -256,12 +295,13 @@ def measure_ingest(plan: IngestPlan) -> Section:
         f"{Settings().sqlite_synchronous}), psycopg 3 COPY on PostgreSQL. Median [min, max] of "
         f"{plan.repeats} repeats, service and limit interleaved, after one warm-up upload of "
         "each format (quick mode: 30,000 detections, SQLite only).",
-        tables=[table],
+        tables=[table, features],
         settings={
             "detections": n,
             "repeats": plan.repeats,
             "databases": backends,
             "goal_share": GOAL_SHARE,
+            "goal_features": GOAL_FEATURES,
             "ratios": ratios,
             "sqlite_synchronous": Settings().sqlite_synchronous,
             "auth": "required (admin key), rate limit off",

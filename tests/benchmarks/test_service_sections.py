@@ -7,6 +7,7 @@ Never asserts speed: benchmarks/ reports timings.
 import sqlite3
 
 import httpx
+import orjson
 import pytest
 
 from benchmarks import datasets
@@ -51,6 +52,20 @@ def test_the_plain_limit_stores_the_rows_the_body_holds(tmp_path, kind):
         assert indexes.fetchone() == (0,)
         assert connection.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     _stored(rows, detections)
+
+
+def test_the_bodies_with_features_carry_lane_length_and_class():
+    detections = simulate(preset("small"), seed=3).detections
+    payloads = ingest.bodies(detections)
+    assert sorted(payloads) == ["csv", "csv + features", "json", "json + features"]
+    header = payloads["csv + features"][0].split(b"\n", 1)[0].decode()
+    assert header.endswith("lane,length,vehicle_class")
+    assert payloads["csv"][0].split(b"\n", 1)[0].decode().split(",")[-1] == "target"
+    rows = orjson.loads(payloads["json + features"][0])["detections"]
+    assert len(rows) == len(detections)
+    assert all(row["length"] > 0 for row in rows if row["length"] is not None)
+    assert {"lane", "length", "vehicle_class"} <= set(rows[0])
+    assert "lane" not in orjson.loads(payloads["json"][0])["detections"][0]
 
 
 def test_the_plain_limit_copies_into_postgresql():
