@@ -8,9 +8,9 @@ SUMO's dense motorway traffic that predicts a travel time to 0.5-1 % (robust spr
 kinematic prediction from two speed readings misses by 4-5 % at a 6 % speed error.
 
 With exact speeds the kinematic prediction is better still (0.3-0.5 %), and the pace mostly
-repeats it while it misreads every driver who brakes or overtakes: there the term cost free
-flow 0.3 points and an irregular road 2. So it weighs by how well the speeds are read, which
-the tracks themselves tell (`reading_error`): nothing below 1.5 % of error, in full from 3 %.
+repeats it while it misreads every driver who brakes or overtakes: weighed in full there, the
+term cost free flow 0.3 points and an irregular road 2. So it weighs by how well the speeds are read, which
+the tracks themselves tell (`reading_error`): nothing below 2 % of error, in full from 3.5 %.
 """
 
 from __future__ import annotations
@@ -149,7 +149,7 @@ def _change_cost(r: FloatArray) -> FloatArray:
     most of the time and change it by 5-20 % when they change lanes, overtake or brake, a
     heavier tail than the two-component mixture of the other residuals (`model.Tails`) fits: on
     SUMO's dense traffic with a 6 % speed error the Cauchy cost gave 84.0 % against 82.6 % for
-    the fitted mixture, capped at 4 or not."""
+    the fitted mixture, capped at 4 or not (docs/assignment.md, "Pace")."""
     known = np.isfinite(r)
     cost = np.zeros(r.size)
     cost[known] = 2.0 * np.log1p(np.square(r[known]))
