@@ -9,8 +9,9 @@ kinematic prediction from two speed readings misses by 4-5 % at a 6 % speed erro
 
 With exact speeds the kinematic prediction is better still (0.3-0.5 %), and the pace mostly
 repeats it while it misreads every driver who brakes or overtakes: weighed in full there, the
-term cost free flow 0.3 points and an irregular road 2. So it weighs by how well the speeds are read, which
-the tracks themselves tell (`reading_error`): nothing below 2 % of error, in full from 3.5 %.
+term cost free flow 0.3 points and an irregular road 2. So it weighs by how well the speeds
+are read, which the tracks themselves tell (`reading_error`): nothing below 2 % of error, in
+full from 3.5 %.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import (
-    MIN_PACE_SPREAD,
+    MIN_RELATIVE_SPREAD,
     PACE_READING_ERROR,
     AssignmentParams,
 )
@@ -300,9 +301,9 @@ def _learn_changes(
     ones."""
     pooled_shift, pooled = centre_and_spread(change)
     # Each change in units of the widening it had over the base spread pooled.
-    base = max(pooled, MIN_PACE_SPREAD)
+    base = max(pooled, MIN_RELATIVE_SPREAD)
     widening = np.sqrt(1.0 + ((model.ambiguity * slowing) ** 2 + noise) / base**2)
-    pooled = max(spread_about(change / widening, pooled_shift), MIN_PACE_SPREAD)
+    pooled = max(spread_about(change / widening, pooled_shift), MIN_RELATIVE_SPREAD)
     model.spread[:] = pooled
     ones = span == 1
     counts = np.bincount(p[ones], minlength=model.shift.shape[0])
@@ -313,4 +314,5 @@ def _learn_changes(
         shift = median(here)
         own = spread_about(here / widening[ones][segment[k]], shift)
         model.shift[k, 1] = w * shift
-        model.spread[k, 1] = max(float(np.sqrt(w * own**2 + (1 - w) * pooled**2)), MIN_PACE_SPREAD)
+        own = float(np.sqrt(w * own**2 + (1 - w) * pooled**2))
+        model.spread[k, 1] = max(own, MIN_RELATIVE_SPREAD)

@@ -70,10 +70,6 @@ REFINE_GATE_FACTOR = 2.0
 CONFIDENT_TRACK_LENGTH = 3
 # A learned spread is never trusted below this: sensors measure to a per cent at best.
 MIN_RELATIVE_SPREAD = 0.01
-# A track's pace read from its travel times (`pace`) holds to a few tenths of a per cent from one
-# link to the next in flowing traffic (SUMO: 0.5-0.8 %), so its spread has a floor of its own;
-# the timestamps' own error widens it where travel times are short.
-MIN_PACE_SPREAD = 0.01
 # The pace term weighs nothing where the speed readings' error (learned from the tracks) is below
 # the first number, and in full above the second. Real speed changes read as error too: 1.8 % on
 # the simulator's 5 % fluctuating speeds, where the term changed no grouping's accuracy by more
@@ -178,10 +174,10 @@ class AssignmentParams(AssociatorParams):
         le=10,
         description="Weight of the penalty on a link whose pace (time per metre, relative to its "
         "segment's typical) departs from the pace of the track's link before it, or after it. "
-        "Timestamps are exact where speed readings are not, and drivers hold their pace, so in "
-        "flowing traffic this tells neighbouring vehicles apart even when speeds are read with a "
-        "5-10 % error; its spread is learned from the tracks, so it weighs little in queues. "
-        "0 ignores it.",
+        "Timestamps are exact where speed readings are not, and drivers hold their pace, so this "
+        "tells neighbouring vehicles apart even when speeds are read with a 5-10 % error. It "
+        "weighs only where the tracks find the speed readings off by 2 % or more (in full from "
+        "3.5 %). 0 ignores it.",
     )
     preferred_speed_memory: float = Field(
         default=3.0,

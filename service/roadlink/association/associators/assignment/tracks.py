@@ -26,29 +26,29 @@ BoolArray = npt.NDArray[np.bool_]
 class TrackLevel:
     """Per detection: mean relative speed of its track up to and including it, and how many
     detections that mean is over; where detectors measure length, the same of its log lengths
-    (a detection without a reading keeps its predecessor's); the pace of the link into it (NaN
-    where it starts its track, or while no pace is learned: `pace.Neighbour`)."""
+    (a detection without a reading keeps its predecessor's); where a pace is learned, the link
+    into it (`pace.Neighbour`, unknown where it starts its track)."""
 
     mean: FloatArray
     count: FloatArray
-    pace: Neighbour
     length_mean: FloatArray | None = None
     length_count: FloatArray | None = None
+    pace: Neighbour | None = None
 
     @classmethod
-    def start(cls, s: Sensors) -> TrackLevel:
+    def start(cls, s: Sensors, pace: PaceModel | None) -> TrackLevel:
         alone = detection_level(s, np.arange(s.time.size))
         return cls(
             alone.mean,
             alone.count,
-            Neighbour.unknown(s.time.size),
             alone.length_mean,
             alone.length_count,
+            None if pace is None else Neighbour.unknown(s.time.size),
         )
 
     def extend(self, s: Sensors, a: IntArray, b: IntArray, pace: PaceModel | None) -> None:
         """Detection b continues the track that ends in detection a."""
-        if pace is not None:
+        if pace is not None and self.pace is not None:
             self.pace.pace[b] = pace.of(s, a, b)
             self.pace.speed[b] = s.log_speed[a]
             self.pace.travel[b] = s.time[b] - s.time[a]
@@ -70,7 +70,7 @@ class TrackLevel:
             self.count[a],
             None if self.length_mean is None else self.length_mean[a],
             None if self.length_count is None else self.length_count[a],
-            self.pace.take(a),
+            None if self.pace is None else self.pace.take(a),
         )
 
 
@@ -133,7 +133,7 @@ def build_tracks(
     Links that lane order `anchor`s (`anchors.py`) cost their bonus less."""
     n_sensors = s.positions.size
     track = np.full(s.time.size, -1, dtype=np.int64)
-    level = TrackLevel.start(s)
+    level = TrackLevel.start(s, model.pace)
     tail = np.zeros(0, dtype=np.int64)  # last detection of every track, by track index
     for q in range(n_sensors):
         linked_b = np.zeros(0, dtype=np.int64)
