@@ -314,5 +314,5 @@ def _learn_changes(
         shift = median(here)
         own = spread_about(here / widening[ones][segment[k]], shift)
         model.shift[k, 1] = w * shift
-        own = float(np.sqrt(w * own**2 + (1 - w) * pooled**2))
-        model.spread[k, 1] = max(own, MIN_RELATIVE_SPREAD)
+        blended = float(np.sqrt(w * own**2 + (1 - w) * pooled**2))
+        model.spread[k, 1] = max(blended, MIN_RELATIVE_SPREAD)
