@@ -247,6 +247,7 @@ def measure_ingest(plan: IngestPlan) -> Section:
         ],
     )
     ratios: dict[str, float] = {}
+    feature_ratios: dict[str, float] = {}
     for backend in backends:
         with tempfile.TemporaryDirectory(prefix="roadlink-limit-") as scratch:
             service_runs, limit_runs = measure_both(payloads, plan.repeats, backend, Path(scratch))
@@ -255,7 +256,7 @@ def measure_ingest(plan: IngestPlan) -> Section:
             featured = Sample.of(service_runs[kind + FEATURED])
             plain_kind = Sample.of(service_runs[kind])
             slower = featured.median / plain_kind.median
-            ratios[f"{backend}/{kind}{FEATURED}"] = slower
+            feature_ratios[f"{backend}/{kind}"] = slower
             features.add(
                 backend,
                 kind,
@@ -302,6 +303,7 @@ def measure_ingest(plan: IngestPlan) -> Section:
             "databases": backends,
             "goal_share": GOAL_SHARE,
             "goal_features": GOAL_FEATURES,
+            "feature_ratios": feature_ratios,
             "ratios": ratios,
             "sqlite_synchronous": Settings().sqlite_synchronous,
             "auth": "required (admin key), rate limit off",

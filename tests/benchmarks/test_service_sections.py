@@ -106,10 +106,14 @@ def test_a_live_service_needs_its_key_and_stops_afterwards():
 def test_ingest_times_service_and_limit_once_per_repeat_and_format():
     plan = ingest.IngestPlan(detections=200, repeats=2, databases=("sqlite",))
     section = ingest.measure_ingest(plan)
-    (table,) = section.tables
+    table, features = section.tables
     assert [row[:2] for row in table.rows] == [["sqlite", "json"], ["sqlite", "csv"]]
     assert all(len(row[4].runs) == 2 and len(row[6].runs) == 2 for row in table.rows)
     assert set(section.settings["ratios"]) == {"sqlite/json", "sqlite/csv"}
+    # The batches with lane, length and class, each beside the same batch without them.
+    assert [row[:2] for row in features.rows] == [["sqlite", "json"], ["sqlite", "csv"]]
+    assert all(len(row[3].runs) == 2 and len(row[4].runs) == 2 for row in features.rows)
+    assert set(section.settings["feature_ratios"]) == {"sqlite/json", "sqlite/csv"}
 
 
 @pytest.mark.slow

@@ -71,10 +71,11 @@ CONFIDENT_TRACK_LENGTH = 3
 # A learned spread is never trusted below this: sensors measure to a per cent at best.
 MIN_RELATIVE_SPREAD = 0.01
 # The pace term weighs nothing where the speed readings' error (learned from the tracks) is below
-# the first number, and in full above the second. Real speed changes read as error too: 1.8 % on
-# the simulator's 5 % fluctuating speeds, where the term changed no grouping's accuracy by more
-# than 0.01 % and cost 28 % more time; exact-speed SUMO traffic reads 0.7-1.5 %.
-PACE_READING_ERROR = (0.02, 0.035)
+# the first number, and in full above the second. Real speed changes read as error too: 1.8-2.1 %
+# on the simulator's 5 % fluctuating speeds (2.1 % on the first round's rougher tracks), where the
+# term changed accuracy by 0.01 % and cost 28 % more time (weighed a fifth) and 40 % more memory
+# (weighed 6 %, in one round); exact-speed SUMO traffic reads 0.7-1.5 %.
+PACE_READING_ERROR = (0.025, 0.04)
 # The skew is searched in [0, 1] in this many steps, on an even sample of this many links, from
 # this many links on; it must beat the symmetric prediction's spread by this many sampling
 # errors (each 1 / sqrt(links)).
@@ -176,8 +177,8 @@ class AssignmentParams(AssociatorParams):
         "segment's typical) departs from the pace of the track's link before it, or after it. "
         "Timestamps are exact where speed readings are not, and drivers hold their pace, so this "
         "tells neighbouring vehicles apart even when speeds are read with a 5-10 % error. It "
-        "weighs only where the tracks find the speed readings off by 2 % or more (in full from "
-        "3.5 %). 0 ignores it.",
+        "weighs only where the tracks find the speed readings off by 2.5 % or more (in full "
+        "from 4 %). 0 ignores it.",
     )
     preferred_speed_memory: float = Field(
         default=3.0,
