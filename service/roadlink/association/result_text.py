@@ -21,7 +21,6 @@ import math
 import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from itertools import chain
 from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
@@ -201,7 +200,7 @@ class _RowTexts:
         ]
         if extra:
             columns.append(extra)
-        return "".join(chain.from_iterable(zip(*columns, strict=True))) + close_list
+        return _interleaved(columns) + close_list
 
     def _floats(self, values: Any, prefix: str = "", suffix: str = "") -> list[str]:
         return float_texts(values, prefix, suffix, spelling=self.spelling)
@@ -244,6 +243,16 @@ class _RowTexts:
         # Without features (the common case) no string is made here: the texts are taken.
         extra = extra + ending if self.features else ending
         return list(extra.tolist())
+
+
+def _interleaved(columns: list[list[str]]) -> str:
+    """The cells of `columns` (of one length) row by row, as one text: placed into one list by
+    slice assignment (a C loop each), a fifth faster than joining `zip`'s tuples."""
+    k = len(columns)
+    cells: list[str] = [""] * (k * len(columns[0]))
+    for j, column in enumerate(columns):
+        cells[j::k] = column
+    return "".join(cells)
 
 
 def _json_strings(values: Any) -> Any:
