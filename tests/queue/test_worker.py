@@ -80,6 +80,31 @@ def test_a_job_stores_exactly_what_the_core_computes(
     assert stored.matrix_csv == expected.to_matrix_csv()
 
 
+def _pool_worker_niceness(settings: Settings, answer: Any) -> None:
+    """A worker process as a pool starts it, answering its niceness instead of working."""
+    from roadlink.queue import worker as module
+
+    module.Worker.run = lambda self: answer.put(os.nice(0))  # type: ignore[method-assign]
+    run_worker_process(settings, parent_pid=os.getppid())
+
+
+@pytest.mark.parametrize("niceness", [0, 7])
+def test_a_pool_worker_runs_as_much_below_its_parent_as_the_setting_says(
+    settings: Settings, niceness: int
+) -> None:
+    spawn = multiprocessing.get_context("spawn")
+    answer = spawn.Queue()
+    process = spawn.Process(
+        target=_pool_worker_niceness,
+        args=(settings.model_copy(update={"worker_niceness": niceness}), answer),
+    )
+    process.start()
+    try:
+        assert answer.get(timeout=60) == min(os.nice(0) + niceness, 19)
+    finally:
+        process.join(60)
+
+
 def test_a_crash_fails_at_once_with_a_short_error_and_the_traceback_in_the_log(
     worker: Worker,
     sessions: sessionmaker[Session],
