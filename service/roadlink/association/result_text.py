@@ -186,20 +186,20 @@ class _RowTexts:
             lead[start] = (close_list if k else "") + piece + "[" + opening
             start += members.size
         extra = self._extra(index, inner, close_row)
+        n = index.size
+        # The constant text between the numbers as columns of their own (a list of one string
+        # repeated costs a pointer a row), not attached to each number: a sixth faster.
         columns = [
             lead,
             self.ids[index].tolist(),
             self._sensor_texts(inner)[index].tolist(),
             self._floats(d.position[index]),
-            self._floats(d.velocity[index], "," + layout.key(inner, "velocity")),
-            self._floats(
-                d.timestamp[index],
-                "," + layout.key(inner, "timestamp"),
-                "" if extra else close_row,
-            ),
+            ["," + layout.key(inner, "velocity")] * n,
+            self._floats(d.velocity[index]),
+            ["," + layout.key(inner, "timestamp")] * n,
+            self._floats(d.timestamp[index]),
+            extra or [close_row] * n,
         ]
-        if extra:
-            columns.append(extra)
         return _interleaved(columns) + close_list
 
     def _floats(self, values: Any, prefix: str = "", suffix: str = "") -> list[str]:
