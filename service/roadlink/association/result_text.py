@@ -146,8 +146,8 @@ _COMPACT = _Layout(indented=False, colon=":")
 class _RowTexts:
     """The text of the detection rows, as `json.dumps(indent=2)` writes them (or orjson's
     compact text, by `layout`), from the columns: each column formatted at once, the constant
-    text between them attached to its cells (`float_texts`' affixes; a text per distinct
-    sensor), and all rows joined in one `str.join` (no string per row)."""
+    text between them as columns of their own (a text per distinct sensor, with its keys), and
+    all rows joined in one `str.join` (no string per row)."""
 
     def __init__(self, result: AssociationResult, layout: _Layout) -> None:
         d = result.detections
