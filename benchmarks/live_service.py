@@ -64,8 +64,9 @@ def _environment(database_url: str, extra: dict[str, str] | None) -> dict[str, s
     env = {k: v for k, v in os.environ.items() if not k.startswith("ROADLINK_")}
     env.update(
         ROADLINK_DATABASE_URL=database_url,
-        # The one setting passed on from the benchmark's environment: the sections report it.
+        # The settings passed on from the benchmark's environment: the sections report them.
         ROADLINK_SQLITE_SYNCHRONOUS=Settings().sqlite_synchronous,
+        ROADLINK_WORKER_NICENESS=str(Settings().worker_niceness),
         ROADLINK_LOG_LEVEL="warning",
         ROADLINK_RATE_LIMIT_PER_SECOND="0",
         **(extra or {}),

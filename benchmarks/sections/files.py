@@ -8,9 +8,10 @@ as a ratio against a reference measured in the same run (issue 19).
   pool and allocator once per process: reported beside), against the bytes of the arrays it
   produces (the columns and their strings); goal at most 3x.
 - Out: the CLI's `--json` (`write_result_json` to /dev/null, as the CLI writes it to its
-  stdout, bytes without a decoded copy), the service's stored JSON
-  (`orjson.dumps(result.to_dict())`) and the matrix (`to_matrix_csv`) of an `assignment`
-  result, against that association's time; goal at most 10 % each.
+  stdout, bytes without a decoded copy), the service's stored JSON (`result_json_compact`;
+  beside it what the service ran before, `orjson.dumps(result.to_dict())`, the same text) and
+  the matrix (`to_matrix_csv`) of an `assignment` result, against that association's time;
+  goal at most 10 % each.
 - CLI: `roadlink associate FILE --json` in a subprocess, beside the in-process association of
   the same detections, interleaved; goal at most 1.15, and a peak of at most 1 GiB.
 """
@@ -35,7 +36,7 @@ from benchmarks.report import Column, Sample, Section, Table
 from roadlink.association import AssociationResult, associate
 from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
-from roadlink.association.result_text import write_result_json
+from roadlink.association.result_text import result_json_compact, write_result_json
 
 NAME = "files"
 GOAL_READ_SPEED = 0.5
@@ -226,7 +227,8 @@ def _write_and_cli_tables(path: Path, plan: FilesPlan) -> tuple[Table, Table]:
     peaks: list[float] = []
     writers: dict[str, Callable[[AssociationResult], object]] = {
         "CLI --json (write_result_json)": json_to_devnull,
-        "service JSON (orjson of to_dict)": lambda r: orjson.dumps(r.to_dict()),
+        "service JSON (result_json_compact)": result_json_compact,
+        "service JSON before (orjson of to_dict)": lambda r: orjson.dumps(r.to_dict()),
         "matrix CSV (to_matrix_csv)": lambda r: r.to_matrix_csv(),
     }
     writes: dict[str, list[float]] = {name: [] for name in writers}

@@ -136,7 +136,8 @@ def run(quick: bool) -> Section:
     return Section(
         NAME,
         "End-to-end latency of a paper-sized job on the embedded default (`roadlink serve`: "
-        f"SQLite, synchronous={Settings().sqlite_synchronous}, one worker process per core), "
+        f"SQLite, synchronous={Settings().sqlite_synchronous}, one worker process per core at "
+        f"worker niceness {Settings().worker_niceness}), "
         "over HTTP, beside the in-process association of the same batches.",
         tables=[table],
         settings={
@@ -148,6 +149,7 @@ def run(quick: bool) -> Section:
             "library_timings": Sample.of(runs.library).to_dict(),
             "overhead_seconds": overhead,
             "sqlite_synchronous": Settings().sqlite_synchronous,
+            "worker_niceness": Settings().worker_niceness,
             "auth": "required (admin key), rate limit off",
         },
     )

@@ -48,6 +48,16 @@ class Settings(BaseSettings):
         description="Worker processes `roadlink serve` starts (0 = API only).",
         json_schema_extra={"shown_default": "the number of cores"},
     )
+    worker_niceness: int = Field(
+        default=0,
+        ge=0,
+        le=19,
+        description="How much lower than their parent's the CPU priority of the worker "
+        "processes `serve` (or `worker` with several) starts is: added to their nice value (0 "
+        "= the same, 19 = the lowest). Raise it (10, say) where association must never slow "
+        "the API's answers on cores they share; it also puts every job behind any other work "
+        "on the host. See docs/deploy.md.",
+    )
     lease_seconds: float = Field(
         default=30.0,
         gt=0,

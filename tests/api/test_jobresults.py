@@ -27,7 +27,7 @@ from roadlink.association.result import AssociationResult
 from roadlink.db import repository
 from roadlink.db.engine import make_session_factory
 from roadlink.db.models import JobState
-from roadlink.queue.worker import WORKER_NICENESS, Worker
+from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
 from roadlink.simulation import preset, simulate
 from tests.helpers import assert_problem, bearer, post_csv_batch, unsaved_job
@@ -86,12 +86,12 @@ def test_a_plot_is_rendered_once_per_kind_and_format(
     assert [t.target for t in cached.trajectories] == [f"T{k + 1}" for k in range(local.n_targets)]
 
 
-def test_plots_are_drawn_at_the_workers_lower_priority(local: AssociationResult) -> None:
+def test_plots_are_drawn_at_a_lower_priority(local: AssociationResult) -> None:
     """Drawing, the API's heaviest work, must not take a core from its event loop."""
     assert render_elsewhere(local, "time-space", "svg").startswith(b"<?xml")
     assert jobresults._renderer is not None
     niceness = jobresults._renderer.submit(os.nice, 0).result()
-    assert niceness == min(os.nice(0) + WORKER_NICENESS, 19)
+    assert niceness == min(os.nice(0) + jobresults.RENDERER_NICENESS, 19)
 
 
 def test_why_a_job_has_no_result() -> None:

@@ -91,6 +91,8 @@ def test_plain_variants_read_as_the_exact_reader_reads_them(text):
         "position,velocity,timestamp\n0,20,\n",
         "position,velocity,timestamp\n0,20,1_0\n",
         "position,velocity,timestamp\n0,20,٣\n",
+        "position,velocity,timestamp,sensor_id\n0,20,1,a\u00a0\n100,20,6,b\n",  # Python strips it
+        "position,velocity,timestamp,sensor_id\n0,20,1,\u00e9\n100,20,6,b\n",  # beyond ASCII
         "position,velocity,timestamp\n0,1e-300,1\n1e12,20,1\n",  # too slow to cross the road
         "position,velocity,timestamp,detection_id\n0,20,1,a\n100,20,6,a\n",
         "position,velocity,timestamp,detection_id\n0,20,1,a\n100,20,6,\n",

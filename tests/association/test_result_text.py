@@ -1,11 +1,13 @@
 """The fast writers of a result write exactly what the plain ones wrote: `json.dumps(document,
-indent=2)` for the CLI's --json, and the cell-by-cell matrix."""
+indent=2)` for the CLI's --json, `orjson.dumps(document)` for the service's stored result, and
+the cell-by-cell matrix."""
 
 import dataclasses
 import json
 import re
 
 import numpy as np
+import orjson
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -13,7 +15,7 @@ from hypothesis import strategies as st
 from roadlink.association import associate, result_text
 from roadlink.association.detections import Detections
 from roadlink.association.result import build_result
-from roadlink.association.result_text import result_json_text
+from roadlink.association.result_text import result_json_compact, result_json_text
 from roadlink.simulation import preset, simulate
 
 
@@ -45,6 +47,20 @@ def test_the_cli_json_is_json_dumps_byte_for_byte(result):
 
 
 @pytest.mark.parametrize("result", results())
+def test_the_stored_json_is_orjson_of_the_row_objects_byte_for_byte(result):
+    assert result_json_compact(result) == orjson.dumps(result.to_dict()).decode()
+
+
+def test_the_stored_json_of_text_orjson_writes_otherwise_is_orjson_of_the_rows():
+    """Ids that are not printable ASCII: orjson writes them raw, control characters escaped."""
+    d = simulate(preset("small"), seed=1).detections
+    ids = [f"\u00e9{i}" if i % 2 else f"tab\t{i}" for i in range(len(d))]
+    d = dataclasses.replace(d, detection_id=np.array(ids, dtype=object))
+    result = build_result(d, np.arange(len(d)) % 5 - 1, "x", {})
+    assert result_json_compact(result) == orjson.dumps(result.to_dict()).decode()
+
+
+@pytest.mark.parametrize("result", results())
 def test_the_matrix_placed_by_numpy_is_the_matrix_written_cell_by_cell(result, monkeypatch):
     fast = result.to_matrix_csv()
     monkeypatch.setattr(result_text, "_NEEDS_QUOTES", re.compile(r"|"))  # always cell by cell
@@ -54,6 +70,13 @@ def test_the_matrix_placed_by_numpy_is_the_matrix_written_cell_by_cell(result, m
 def test_float_texts_are_repr():
     values = np.array([0.0, -0.0, 1e-5, 1.5e-7, 0.1, 1 / 3, 1e16, 123.0, np.inf, np.nan])
     assert result_text.float_texts(values) == [repr(v) for v in values.tolist()]
+
+
+def test_float_texts_in_orjson_spelling_are_orjsons_of_python_floats():
+    values = np.array([0.0, -0.0, 1e-5, -1.5e-7, 5e-324, 0.1, 1 / 3, 1e16, 123.0, 1.7e308])
+    expected = [orjson.dumps(v).decode() for v in values.tolist()]
+    assert result_text.float_texts(values, spelling="orjson") == expected
+    assert expected[2] != repr(1e-5)  # the two spellings differ there
 
 
 def test_float_texts_take_a_prefix_and_a_suffix():
@@ -67,6 +90,7 @@ def test_the_cli_json_is_json_dumps_across_batches_of_rows(monkeypatch):
     monkeypatch.setattr(result_text, "_BATCH_ROWS", 1)
     for result in results()[:3]:
         assert result_json_text(result) == json.dumps(result.to_dict(), indent=2) + "\n"
+        assert result_json_compact(result) == orjson.dumps(result.to_dict()).decode()
 
 
 ids = st.text(alphabet=st.characters(min_codepoint=32, max_codepoint=126), min_size=1, max_size=5)
@@ -82,7 +106,7 @@ ids = st.text(alphabet=st.characters(min_codepoint=32, max_codepoint=126), min_s
 )
 def test_any_ids_groups_and_links_write_as_the_plain_writers_do(rows, seed, links):
     """Ids with quotes, backslashes, commas and formula starts; targets, unassigned detections
-    and links at random: both writers give the plain writers' bytes."""
+    and links at random: every writer gives the plain writers' bytes."""
     unique = list(dict.fromkeys(i for i, _ in rows))
     sensors = [s for _, s in rows][: len(unique)]
     n = len(unique)
@@ -95,6 +119,7 @@ def test_any_ids_groups_and_links_write_as_the_plain_writers_do(rows, seed, link
     confidence = np.where(rng.random(n) < 0.3, np.nan, rng.random(n)) if links else None
     result = build_result(d, groups, "x", {}, link_confidence=confidence)
     assert result_json_text(result) == json.dumps(result.to_dict(), indent=2) + "\n"
+    assert result_json_compact(result) == orjson.dumps(result.to_dict()).decode()
     fast = result.to_matrix_csv()
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(result_text, "_NEEDS_QUOTES", re.compile(r"|"))

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from sklearn.metrics import adjusted_rand_score
 
-from roadlink.association.scores import score_grouping
+from roadlink.association.scores import adjusted_rand_index, score_grouping
 
 
 def labels(*values):
@@ -64,7 +64,20 @@ def test_ari_matches_scikit_learn_with_singletons():
     truth = rng.integers(0, 6, size=60)
     pred = np.where(rng.random(60) < 0.8, truth, rng.integers(0, 6, size=60))
     m = score_grouping(pred.astype(np.int64), np.array([f"T{t}" for t in truth], dtype=object))
-    assert m.ari == pytest.approx(adjusted_rand_score(truth, pred))
+    assert m.ari == adjusted_rand_score(truth, pred)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_the_adjusted_rand_index_is_scikit_learns_float(seed):
+    """The same float as scikit-learn's, on groupings of every shape: few or many groups,
+    mostly agreeing or not, one group, all singletons, a single detection."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 400))
+    truth = rng.integers(0, int(rng.integers(1, n + 1)), size=n)
+    shuffled = rng.integers(0, int(rng.integers(1, n + 1)), size=n)
+    pred = np.where(rng.random(n) < rng.random(), truth, shuffled)
+    for t, p in [(truth, pred), (truth, np.zeros(n, int)), (truth, np.arange(n)), (pred, pred)]:
+        assert adjusted_rand_index(t, p) == adjusted_rand_score(t, p)
 
 
 def test_large_sparse_grouping_is_scored_exactly():

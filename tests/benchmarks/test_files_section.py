@@ -18,5 +18,5 @@ def test_the_files_section_reads_writes_and_runs_the_cli_beside_its_references(m
     section = files.run(quick=True).to_dict()
     read, write, cli = section["tables"]
     assert len(read["rows"]) == 1 and len(cli["rows"]) == 1
-    assert len(write["rows"]) == 3
+    assert len(write["rows"]) == 4  # CLI JSON, stored JSON, its former writer, matrix
     assert section["settings"] == {"detections": 1_000, "repeats": 2}

@@ -5,7 +5,6 @@ PostgreSQL, finishes each job exactly once while workers are killed and frozen."
 
 from __future__ import annotations
 
-import json
 import multiprocessing
 import os
 import signal
@@ -17,6 +16,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import orjson
 import pytest
 from sqlalchemy import Engine, func, select, text
 from sqlalchemy.orm import Session, sessionmaker
@@ -75,8 +75,34 @@ def test_a_job_stores_exactly_what_the_core_computes(
         stored = repository.get_job_result(session, job_id=job_id)
     assert stored is not None
     expected = associate(paper_batch, "kmeans", {"seed": 4, "n_init": 3})
-    assert json.loads(stored.result_json) == json.loads(json.dumps(expected.to_dict()))
+    # The text the API serves as is: orjson's of the row objects, byte for byte.
+    assert stored.result_json == orjson.dumps(expected.to_dict()).decode()
     assert stored.matrix_csv == expected.to_matrix_csv()
+
+
+def _pool_worker_niceness(settings: Settings, answer: Any) -> None:
+    """A worker process as a pool starts it, answering its niceness instead of working."""
+    from roadlink.queue import worker as module
+
+    module.Worker.run = lambda self: answer.put(os.nice(0))  # type: ignore[method-assign]
+    run_worker_process(settings, parent_pid=os.getppid())
+
+
+@pytest.mark.parametrize("niceness", [0, 7])
+def test_a_pool_worker_runs_as_much_below_its_parent_as_the_setting_says(
+    settings: Settings, niceness: int
+) -> None:
+    spawn = multiprocessing.get_context("spawn")
+    answer = spawn.Queue()
+    process = spawn.Process(
+        target=_pool_worker_niceness,
+        args=(settings.model_copy(update={"worker_niceness": niceness}), answer),
+    )
+    process.start()
+    try:
+        assert answer.get(timeout=60) == min(os.nice(0) + niceness, 19)
+    finally:
+        process.join(60)
 
 
 def test_a_crash_fails_at_once_with_a_short_error_and_the_traceback_in_the_log(

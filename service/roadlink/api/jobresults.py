@@ -28,7 +28,6 @@ from roadlink.association.result import AssociationResult
 from roadlink.db import repository
 from roadlink.db.models import Job, JobState
 from roadlink.plots import render_plot
-from roadlink.queue.worker import WORKER_NICENESS
 
 CACHE_DETECTIONS = 20_000
 """Detections the cache may hold across jobs (a few hundred bytes each, with their trajectories);
@@ -79,6 +78,10 @@ class CachedResult:
             return self._plots.setdefault(key, image)
 
 
+# How much lower than the API's the plot renderer's priority is: drawing is the API's own
+# background work, and its event loop must not wait for a core behind it.
+RENDERER_NICENESS = 10
+
 _renderer: ProcessPoolExecutor | None = None
 _renderer_lock = threading.Lock()
 
@@ -91,9 +94,9 @@ def render_elsewhere(result: AssociationResult, kind: str, fmt: str) -> bytes:
     a plot. Measured with benchmarks/soak.py (16 clients): /healthz p99 225 ms with plots drawn
     in the API process.
 
-    The renderer runs at the workers' lower priority: drawing is the API process tree's biggest
-    use of CPU (a third of two cores in the soak), and at the API's own priority it kept the
-    event loop waiting for a core for up to 100 ms at a time.
+    The renderer runs at a lower priority (`RENDERER_NICENESS`): drawing is the API process
+    tree's biggest use of CPU (a third of two cores in the soak), and at the API's own priority
+    it kept the event loop waiting for a core for up to 100 ms at a time.
     """
     global _renderer
     with _renderer_lock:
@@ -102,7 +105,7 @@ def render_elsewhere(result: AssociationResult, kind: str, fmt: str) -> bytes:
                 max_workers=1,
                 mp_context=multiprocessing.get_context("spawn"),
                 initializer=os.nice,
-                initargs=(WORKER_NICENESS,),
+                initargs=(RENDERER_NICENESS,),
             )
         renderer = _renderer
     return renderer.submit(render_plot, result, kind, fmt).result()

@@ -102,10 +102,11 @@ def _plain_lines(data: bytes, width: int) -> int | None:
     reader and polars might differ on, and the file holds as many commas as lines as wide as
     the header: checked over the whole file at C speed. polars then refuses a line wider than
     the header, so that no line is narrower either (none blank: a blank line has no comma)."""
-    if not data.isascii() or any(c in data for c in _NOT_PLAIN):
+    if any(c in data for c in _NOT_PLAIN):
         return None
     newlines, commas, blanks = _count_bytes(data)
-    if blanks != newlines:  # a space or a control character (Python strips \x1c-\x1f too)
+    if blanks != newlines:  # a space, a control character (Python strips \x1c-\x1f too), or
+        # a byte beyond ASCII
         carriage_returns = data.count(b"\r")
         if blanks != newlines + carriage_returns or carriage_returns != data.count(b"\r\n"):
             return None  # CRLF line ends are plain; any other carriage return is not
@@ -117,10 +118,11 @@ _NOT_PLAIN = (b'"', b"'")
 
 
 def _count_bytes(data: bytes) -> tuple[int, int, int]:
-    """The newlines, the commas, and the bytes up to the space (controls, newlines included)
-    of `data`: numpy counts a byte three times as fast as `bytes.count`; by chunks, so that its
-    comparisons' memory stays small."""
-    buffer = np.frombuffer(data, dtype=np.uint8)
+    """The newlines, the commas, and the bytes up to the space (controls, newlines included) or
+    beyond ASCII of `data`: numpy counts a byte three times as fast as `bytes.count`; by chunks,
+    so that its comparisons' memory stays small. Read as signed bytes, every byte beyond ASCII
+    is negative: the one comparison counts both, so no pass of its own checks for ASCII."""
+    buffer = np.frombuffer(data, dtype=np.int8)
     newlines = commas = blanks = 0
     for start in range(0, buffer.size, _CHUNK_BYTES):
         chunk = buffer[start : start + _CHUNK_BYTES]
@@ -130,20 +132,27 @@ def _count_bytes(data: bytes) -> tuple[int, int, int]:
     return newlines, commas, blanks
 
 
-_CHUNK_BYTES = 1 << 22
+# A chunk and its comparison stay in a core's L2 cache: 0.6 of the time of 4 MiB chunks here.
+_CHUNK_BYTES = 1 << 18
 
 
 def _numbers_valid(position: Any, velocity: Any, timestamp: Any) -> bool:
     """What `Detections.from_columns` checks of the numbers, at once: finite, within the
-    magnitude limit, positive speeds fast enough to cross the batch's road in finite time."""
+    magnitude limit, positive speeds fast enough to cross the batch's road in finite time.
+
+    By each column's least and greatest value, without a temporary array: a NaN makes both
+    NaN, which fails every comparison. The slowest speed gives the longest crossing, as
+    division rounds monotonically: the same answer as dividing by every speed."""
     for values in (position, velocity, timestamp):
-        if not bool(np.all(np.abs(values) <= MAX_ABS_VALUE)):  # NaN and inf fail too
+        low, high = float(values.min()), float(values.max())
+        if not (low >= -MAX_ABS_VALUE and high <= MAX_ABS_VALUE):  # NaN and inf fail too
             return False
-    if not bool(np.all(velocity > 0)):
+    slowest = float(velocity.min())
+    if not slowest > 0:
         return False
     span = float(position.max() - position.min())
-    with np.errstate(divide="ignore", over="ignore"):
-        return bool(np.all(span / velocity <= MAX_ABS_VALUE))
+    with np.errstate(over="ignore"):
+        return bool(np.float64(span) / np.float64(slowest) <= MAX_ABS_VALUE)
 
 
 def _sensor_ids(frame: pl.DataFrame, position: Any) -> Any:
@@ -189,7 +198,7 @@ def _detection_ids_unique(frame: pl.DataFrame) -> bool:
     column = frame["detection_id"]
     if column.null_count():
         return False
-    hashes = column.hash().sort().to_numpy()
+    hashes = np.sort(column.hash().to_numpy())  # numpy's sort: twice polars' speed here
     if not bool(np.any(hashes[1:] == hashes[:-1])):
         return True
     return column.n_unique() == frame.height

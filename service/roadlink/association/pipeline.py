@@ -20,7 +20,6 @@ from roadlink.association.result import AssociationResult, build_result
 
 DEFERRED_IMPORTS = (
     "sklearn.cluster",
-    "sklearn.metrics",
     "sklearn.model_selection",
     "sklearn.multiclass",
     "sklearn.pipeline",

@@ -53,9 +53,6 @@ def score_grouping(groups: IntArray, labels: ObjectArray) -> Metrics | None:
     truth = np.unique(truth_text, return_inverse=True)[1]
     truth = np.where(is_clutter, -1, truth)
 
-    # Imported here: scikit-learn takes seconds to import, and only labelled input is scored.
-    from sklearn.metrics import adjusted_rand_score
-
     accuracy = _matched_accuracy(pred, truth)
     precision, recall = _pairwise_precision_recall(pred, truth)
     f1 = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
@@ -64,7 +61,7 @@ def score_grouping(groups: IntArray, labels: ObjectArray) -> Metrics | None:
         pairwise_precision=precision,
         pairwise_recall=recall,
         pairwise_f1=f1,
-        ari=float(adjusted_rand_score(_singletons(truth), _singletons(pred))),
+        ari=adjusted_rand_index(_singletons(truth), _singletons(pred)),
         complete_targets=_complete_share(pred, truth),
     )
 
@@ -161,6 +158,29 @@ def _pairwise_precision_recall(pred: IntArray, truth: IntArray) -> tuple[float, 
     precision = agreeing / predicted if predicted else 1.0
     recall = agreeing / true if true else 1.0
     return precision, recall
+
+
+def adjusted_rand_index(truth: IntArray, pred: IntArray) -> float:
+    """scikit-learn's `adjusted_rand_score(truth, pred)` of two labellings by ids >= 0, the
+    same float: its pair counts from the contingency table's cells and the two sides' sizes,
+    in exact integers, then its formula. Here because scikit-learn takes seconds to import,
+    for one formula."""
+    n = int(pred.size)
+    if n == 0:
+        return 1.0
+    pred, truth = np.asarray(pred, dtype=np.int64), np.asarray(truth, dtype=np.int64)
+    # A cell's key in one integer: ids below 2n, so 4n^2 stays within int64 for n < 10^9.
+    cells = np.unique(pred * (int(truth.max()) + 1) + truth, return_counts=True)[1]
+    same_both = int(np.sum(cells * cells))
+    same_pred = int(np.sum(np.bincount(pred) ** 2))
+    same_truth = int(np.sum(np.bincount(truth) ** 2))
+    tp = same_both - n
+    fp = same_pred - same_both
+    fn = same_truth - same_both
+    tn = n * n - fp - fn - same_both
+    if fn == 0 and fp == 0:  # full agreement, or no detection
+        return 1.0
+    return 2.0 * (tp * tn - fn * fp) / ((tp + fn) * (fn + tn) + (tp + fp) * (fp + tn))
 
 
 def _singletons(ids: IntArray) -> IntArray:

@@ -10,7 +10,7 @@ import typer
 
 from roadlink.cli import app
 from roadlink.cli.server import _migrate, _safe_url, _settings
-from roadlink.db.models import ApiKeyScope
+from roadlink.db.enums import ApiKeyScope
 
 keys_app = typer.Typer(
     help="Create, list and revoke API keys (the service needs one on every /v1 request).",

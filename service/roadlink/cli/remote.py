@@ -22,7 +22,7 @@ from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR
 from roadlink.cli import app
 from roadlink.cli.analysis import ParamOption, print_summary
 from roadlink.cli.client import DEFAULT_URL, Remote, RemoteError
-from roadlink.db.models import JobState
+from roadlink.db.enums import JobState
 
 # How often `submit --wait` asks for the job's progress: well inside the default rate limit
 # (20 requests per second per key), and often enough for a bar that moves.

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import enum
 import uuid
 from datetime import UTC, datetime
 from typing import Any, ClassVar
@@ -26,6 +25,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
+from roadlink.db.enums import ApiKeyScope as ApiKeyScope  # a key's `scope`, by its name here too
+from roadlink.db.enums import JobState
 from roadlink.db.json_columns import Selection, SelectionType, Sensor, SensorsType
 
 # Stable constraint names, so that migrations can refer to them on every database.
@@ -78,20 +79,6 @@ class Base(DeclarativeBase):
         dict[str, Any]: JSON(),
         uuid.UUID: Uuid(),
     }
-
-
-class JobState(enum.StrEnum):
-    """Where a job is in its life: queued -> running -> succeeded | failed | cancelled."""
-
-    QUEUED = "queued"
-    RUNNING = "running"
-    SUCCEEDED = "succeeded"
-    FAILED = "failed"
-    CANCELLED = "cancelled"
-
-    @property
-    def finished(self) -> bool:
-        return self in (JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED)
 
 
 class JobStateType(TypeDecorator[JobState]):
@@ -215,20 +202,11 @@ class JobResult(Base):
     job_id: Mapped[uuid.UUID] = mapped_column(
         ForeignKey("job.id", ondelete="CASCADE"), primary_key=True
     )
-    # AssociationResult.to_dict() serialised once, served as is.
+    # orjson's text of AssociationResult.to_dict() (result_json_compact), served as is.
     result_json: Mapped[str] = mapped_column(Text)
     matrix_csv: Mapped[str] = mapped_column(Text)
     accuracy: Mapped[float | None] = mapped_column(Float)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
-
-
-class ApiKeyScope(enum.StrEnum):
-    """What an API key may do: `ingest` posts batches to the deployments it names, `read` reads
-    everything and runs jobs, `admin` does all that and manages deployments and keys."""
-
-    INGEST = "ingest"
-    READ = "read"
-    ADMIN = "admin"
 
 
 class ApiKey(Base):

@@ -18,11 +18,11 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-import orjson
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from roadlink.association.result import AssociationResult
+from roadlink.association.result_text import result_json_compact
 from roadlink.db.drivers import driver_of
 from roadlink.db.json_columns import Selection
 from roadlink.db.models import Job, JobResult, JobState
@@ -212,7 +212,8 @@ def complete_job(
     session.add(
         JobResult(
             job_id=job_id,
-            result_json=orjson.dumps(result.to_dict()).decode(),
+            # orjson.dumps(result.to_dict()), the same text, without a dict per detection.
+            result_json=result_json_compact(result),
             matrix_csv=result.to_matrix_csv(),
             accuracy=None if result.metrics is None else result.metrics.accuracy,
             created_at=now,

@@ -290,9 +290,6 @@ def _error_id() -> str:
     return uuid.uuid4().hex[:12]
 
 
-# How much lower than `serve`'s the priority of the workers it starts is (see run_worker_process).
-WORKER_NICENESS = 10
-
 # How often a worker process checks that the process that started it is still there.
 PARENT_CHECK_SECONDS = 1.0
 
@@ -330,9 +327,9 @@ def run_worker_process(settings: Settings, parent_pid: int | None = None) -> Non
     signal.signal(signal.SIGINT, stop)
     if parent_pid is not None:  # started by a pool (not `roadlink worker` as one process)
         _stop_when_orphaned(worker.stopping, parent_pid)
-        # Beside the API on the same cores: association is background work, and a request
-        # (a probe's above all) must not wait for a core behind it.
-        os.nice(WORKER_NICENESS)
+        # Beside the API on the same cores, as low as the deployment puts association below
+        # its requests (ROADLINK_WORKER_NICENESS; 0 by default, docs/deploy.md).
+        os.nice(settings.worker_niceness)
     try:
         worker.run()
     finally:
