@@ -66,6 +66,9 @@ def test_without_sensor_or_detection_ids_they_are_generated_as_the_exact_reader_
         "position,velocity,timestamp\n0,20,1\n100,20,6",  # no newline at the end
         "position,velocity,timestamp\n+0,2e1,.5\n1E2,20.,-6\n",  # every decimal form
         "position,velocity,timestamp,sensor_id\n0,20,1,a\n100,20,6,b\n0,21,3,a\n",
+        # Features, some not reported (empty cells), a lane written as a float.
+        "position,velocity,timestamp,lane,length,vehicle_class\n"
+        "0,20,1,0,4.5,car\n100,20,6,,,\n200,20,11,2.0,12,truck\n300,20,16,255,100,bus\n",
     ],
 )
 def test_plain_variants_read_as_the_exact_reader_reads_them(text):
@@ -99,6 +102,16 @@ def test_plain_variants_read_as_the_exact_reader_reads_them(text):
         "position,velocity,timestamp,sensor_id\n0,20,1,a\n100,20,6,a\n",
         "position,velocity,timestamp,sensor_id\n0,20,1,a\n100,20,6,\n",
         "position,velocity,timestamp,lane\n0,20,1,1.5\n",
+        "position,velocity,timestamp,lane\n0,20,1,nan\n",
+        "position,velocity,timestamp,lane\n0,20,1,inf\n",
+        "position,velocity,timestamp,lane\n0,20,1,-1\n",
+        "position,velocity,timestamp,lane\n0,20,1,256\n",
+        "position,velocity,timestamp,length\n0,20,1,0\n",
+        "position,velocity,timestamp,length\n0,20,1,-4\n",
+        "position,velocity,timestamp,length\n0,20,1,nan\n",
+        "position,velocity,timestamp,length\n0,20,1,inf\n",
+        "position,velocity,timestamp,length\n0,20,1,100.5\n",
+        "position,velocity,timestamp,vehicle_class\n0,20,1," + "x" * 33 + "\n",
         "position,velocity,timestamp\n",
         "",
     ],

@@ -65,6 +65,8 @@ def test_classes_are_stripped_short_printable_words():
         ("length", 1e3),
         ("length", "nan"),
         ("length", math.inf),
+        ("length", math.nan),
+        ("lane", math.nan),
         ("vehicle_class", "x" * 33),
         ("vehicle_class", 5),
         ("vehicle_class", "car\x00x"),
@@ -80,3 +82,26 @@ def test_bad_features_name_row_and_field(column, bad):
             **{column: [good, good, bad, good]},
         )
     assert [(p.row, p.field) for p in excinfo.value.problems] == [(3, column)]
+
+
+@pytest.mark.parametrize(
+    ("lanes", "lengths", "classes"),
+    [
+        ([0, None, 2, 1.0], [4.5, None, 12, 100], ["car", None, "truck", "car"]),
+        ([None, None, None, 3], [None, 4.0, None, None], [None, None, None, "5"]),
+        ([MAX_LANE, 0, 0, 0], [MAX_LENGTH, 1e-3, 7, 7], ["x" * MAX_CLASS_CHARS, "a", "b", "c"]),
+    ],
+)
+def test_a_json_batchs_columns_read_as_one_value_at_a_time(lanes, lengths, classes):
+    # A JSON batch's columns (numbers and None, text and None) take a path that checks whole
+    # columns at once; every value must come out as the value-by-value checks make it. The
+    # same values as text (a CSV's cells) take those checks.
+    problems: list[Problem] = []
+    as_text = [[None if v is None else str(v) for v in column] for column in (lanes, lengths)]
+    assert lane_column(4, lanes, problems).tolist() == lane_column(4, as_text[0], problems).tolist()
+    assert np.array_equal(
+        length_column(4, lengths, problems), length_column(4, as_text[1], problems), equal_nan=True
+    )
+    spaced = [None if c is None else f" {c} " for c in classes]  # stripped one at a time
+    assert class_column(4, classes, problems).tolist() == class_column(4, spaced, problems).tolist()
+    assert problems == []

@@ -21,9 +21,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from roadlink.association.columns import MAX_ABS_VALUE, Problem
+from roadlink.association.columns import MAX_ABS_VALUE
 from roadlink.association.detections import Detections
-from roadlink.association.feature_columns import class_column, lane_column, length_column
+from roadlink.association.feature_columns import MAX_CLASS_CHARS, MAX_LANE, MAX_LENGTH, NO_LANE
 
 if TYPE_CHECKING:
     import polars as pl
@@ -51,7 +51,8 @@ def fast_detections(data: bytes, max_rows: int | None = None) -> Detections | No
     # Imported here, on the first CSV: every process imports the core, few read CSV.
     import polars as pl
 
-    schema = {name: (pl.Float64 if name in NUMBER_COLUMNS else pl.String) for name in names}
+    numbers = (*NUMBER_COLUMNS, "lane", "length")
+    schema = {name: (pl.Float64 if name in numbers else pl.String) for name in names}
     try:
         # Strict about width: a line with more fields than the header is an error here, so
         # with `_plain_lines`' comma count every line has exactly the header's fields.
@@ -212,14 +213,32 @@ def _detection_ids(frame: pl.DataFrame) -> Any:
 
 
 def _features(frame: pl.DataFrame, n: int) -> dict[str, Any] | None:
-    """The detector features the file has columns for, through the exact validators (a
-    feature column is short work beside the ids; an absent one `Detections` fills as not
-    reported); None when one has a problem."""
-    validators = {"lane": lane_column, "length": length_column, "vehicle_class": class_column}
-    problems: list[Problem] = []
-    features = {
-        name: validate(n, frame[name].to_list(), problems)
-        for name, validate in validators.items()
-        if name in frame.columns
-    }
-    return None if problems else features
+    """The detector features the file has columns for, as the exact validators would return
+    them (an absent one `Detections` fills as not reported): lane and length read by polars as
+    numbers (an empty cell: not reported), checked by numpy, the classes one `str` per distinct
+    value; None when a value is one the exact reader would refuse, or reads otherwise."""
+    features: dict[str, Any] = {}
+    for name in ("lane", "length"):
+        if name not in frame.columns:
+            continue
+        # An empty cell is null (not reported); a "nan" is NaN, which the exact reader refuses.
+        reported = ~frame[name].is_null().to_numpy()
+        values = frame[name].to_numpy()
+        value = values[reported]
+        if name == "lane":
+            valid = (value == np.round(value)) & (value >= 0) & (value <= MAX_LANE)
+        else:
+            valid = np.isfinite(value) & (value > 0) & (value <= MAX_LENGTH)
+        if not np.all(valid):  # NaN and infinities fail every comparison they meet here
+            return None
+        if name == "lane":
+            features[name] = np.where(reported, np.nan_to_num(values), NO_LANE).astype(np.int64)
+        else:
+            features[name] = np.where(reported, values, np.nan)
+    if "vehicle_class" in frame.columns:
+        classes = frame["vehicle_class"]
+        longest = classes.str.len_chars().max()
+        if longest is not None and int(longest) > MAX_CLASS_CHARS:  # type: ignore[arg-type]
+            return None
+        features["vehicle_class"] = shared_texts(classes)
+    return features

@@ -77,6 +77,9 @@ def _optional_floats(
     out = np.full(n, np.nan)
     if given is None:
         return out
+    plain = _plain_numbers(given)
+    if plain is not None:
+        return plain
     if isinstance(given, np.ndarray) and given.dtype.kind == "f":
         values: list[object] = [None if np.isnan(v) else v for v in given.tolist()]
     else:
@@ -94,6 +97,27 @@ def _optional_floats(
     return out
 
 
+def _plain_numbers(given: RawColumn) -> FloatArray | None:
+    """A list of JSON numbers and None (as a JSON batch gives them) as floats, NaN for None, at
+    C speed; None when any value is something else, not finite or beyond MAX_ABS_VALUE: the
+    checks that name each problem run then."""
+    if not isinstance(given, list) or not set(map(type, given)) <= _JSON_NUMBER_TYPES:
+        return None
+    try:
+        values = np.array(given, dtype=np.float64)  # None is NaN
+    except OverflowError:
+        return None
+    if np.count_nonzero(np.isnan(values)) != given.count(None):
+        return None  # a NaN given as a number
+    reported = values[~np.isnan(values)]
+    if not np.all(np.abs(reported) <= MAX_ABS_VALUE):
+        return None
+    return values
+
+
+_JSON_NUMBER_TYPES = {int, float, type(None)}
+
+
 def class_column(
     n: int, given: Sequence[str | None] | None, problems: list[Problem]
 ) -> ObjectArray:
@@ -101,6 +125,8 @@ def class_column(
     out = np.full(n, None, dtype=object)
     if given is None:
         return out
+    if _plain_classes(given):
+        return np.array(given, dtype=object)
     for i, value in enumerate(given):
         if value is not None and not isinstance(value, str):
             problems.append(Problem(i + 1, "vehicle_class", f"must be text, got {value!r}"))
@@ -116,6 +142,20 @@ def class_column(
             )
         out[i] = text or None
     return out
+
+
+def _plain_classes(given: Sequence[str | None]) -> bool:
+    """Whether the classes are text or None, each distinct one valid as it is (not blank, no
+    surrounding whitespace): a batch's few classes are checked once each, not per detection."""
+    if not isinstance(given, list) or not set(map(type, given)) <= {str, type(None)}:
+        return False
+    distinct = set(given)
+    distinct.discard(None)
+    return all(
+        text and text == text.strip() and len(text) <= MAX_CLASS_CHARS and text.isprintable()
+        for text in distinct
+        if text is not None
+    )
 
 
 def _is_blank(value: object) -> bool:
