@@ -1,7 +1,8 @@
 """`assignment` for live steps (`roadlink.association.live_assignment`): without a model it
-groups exactly as the offline associator; with the last step's model it links once, skips the
-prior, and scores as offline; a model learned on other sensors, features or parameters is not
-used; the prior is computed again after PRIOR_SECONDS of data."""
+groups exactly as the offline associator and keeps what it learned; with an earlier step's
+model it links once, skips the prior and the learning, and scores as offline; a model learned
+on other sensors, features or parameters, or RELEARN_SECONDS of data ago, is learned again; a
+model learned from too few links is not kept."""
 
 from __future__ import annotations
 
@@ -65,7 +66,7 @@ def test_without_a_model_a_window_is_grouped_as_the_offline_associator_groups_it
     offline_groups, offline_confidence = _offline(d, params)
     np.testing.assert_array_equal(groups, offline_groups)
     np.testing.assert_array_equal(confidence, offline_confidence)  # NaN where no link
-    assert learned.prior_clock == 150.0
+    assert learned is not None and learned.clock == 150.0
 
 
 @pytest.mark.parametrize("features", [False, True])
@@ -79,9 +80,9 @@ def test_with_the_last_steps_model_a_window_is_linked_once(
     passes = _counting(monkeypatch, "build_tracks")
     later = _window(d, 90.0, 260.0).without_labels()
     _, _, following = associate_window(later, params, 260.0, learned)
-    assert priors == []  # the prior is the last step's
+    assert priors == []  # the prior is the earlier step's
     assert len(passes) == (2 if features else 1)  # anchors need a pass without them
-    assert following.prior is learned.prior and following.model is not learned.model
+    assert following is learned
 
 
 def test_with_the_last_steps_model_windows_score_as_offline() -> None:
@@ -100,18 +101,26 @@ def test_with_the_last_steps_model_windows_score_as_offline() -> None:
     assert np.mean(live) >= np.mean(offline) - 0.01
 
 
-def test_the_prior_is_computed_again_once_it_is_prior_seconds_of_data_old(
+def test_a_model_is_learned_again_once_it_is_relearn_seconds_of_data_old(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    d = _window(_traffic(), 0.0, 150.0).without_labels()
+    d = _window(_traffic(), 0.0, 150.0)
     params = AssignmentParams()
-    _, _, learned = associate_window(d, params, 150.0, None)
+    _, _, learned = associate_window(d.without_labels(), params, 150.0, None)
     priors = _counting(monkeypatch, "segment_prior")
     passes = _counting(monkeypatch, "build_tracks")
-    later = 150.0 + live_assignment.PRIOR_SECONDS
-    _, _, following = associate_window(d, params, later, learned)
-    assert len(priors) == 1 and following.prior_clock == later
-    assert len(passes) == 1  # the model is still the last step's
+    later = 150.0 + live_assignment.RELEARN_SECONDS
+    groups, _, following = associate_window(d.without_labels(), params, later, learned)
+    assert len(priors) == 1 and len(passes) == params.em_rounds + 1
+    assert following is not None and following is not learned and following.clock == later
+    np.testing.assert_array_equal(groups, _offline(d, params)[0])
+
+
+def test_a_model_learned_from_a_streams_first_seconds_is_not_kept() -> None:
+    # 20 s of data: few vehicles have reached the far sensors yet.
+    d = _window(_traffic(), 0.0, 20.0).without_labels()
+    _, _, learned = associate_window(d, AssignmentParams(), 20.0, None)
+    assert learned is None
 
 
 @pytest.mark.parametrize("change", ["sensors", "params", "features"])
@@ -134,8 +143,9 @@ def test_a_model_learned_on_other_sensors_features_or_parameters_is_not_used(
 
 
 def test_models_keep_the_most_recently_used_deployments() -> None:
-    d = _window(_traffic(), 0.0, 60.0).without_labels()
-    _, _, learned = associate_window(d, AssignmentParams(), 60.0, None)
+    d = _window(_traffic(), 0.0, 150.0).without_labels()
+    _, _, learned = associate_window(d, AssignmentParams(), 150.0, None)
+    assert learned is not None
     models = Models(size=2)
     models.put("a", learned)
     models.put("b", learned)
@@ -143,3 +153,5 @@ def test_models_keep_the_most_recently_used_deployments() -> None:
     models.put("c", learned)
     assert models.get("b") is None
     assert models.get("a") is learned and models.get("c") is learned
+    models.put("a", None)  # nothing worth keeping: the old model goes too
+    assert models.get("a") is None

@@ -1,22 +1,23 @@
-"""`assignment` for live steps: link a window with the model the previous step learned.
+"""`assignment` for live steps: link a window with a model learned at an earlier step.
 
 Offline, `assignment` learns the road from the detections it is given: the prior
 (`segment_prior`, the mode of the travel-time ratios over every pair of end sensors'
-detections; the costliest stage on a live window, a third of the associator's time), then
-`em_rounds` of linking and learning, then the re-pairing sweeps. A live step's window overlaps
-the previous step's in most of its detections, and the road's behaviour changes over minutes,
-not over the seconds between steps. So a step here starts from the model the previous step
-learned and links once (one pass, not `em_rounds + 1`), re-pairs and confirms as offline, and
-learns the model again from its own tracks for the next step: one EM round a step, spread over
-the stream. The prior, which learning shrinks towards and falls back on, is computed again every
-`PRIOR_SECONDS` of data.
+detections: a third of the associator's time on a live window), then `em_rounds` of linking
+and learning, then the re-pairing sweeps. A live step's window overlaps the previous one in
+most of its detections, and a road's behaviour changes over minutes, not over the seconds
+between steps. So a step runs the whole loop, as `AssignmentAssociator.group` runs it stage by
+stage, only to learn: the model it ends with (and its prior) is kept, and the steps of the next
+`RELEARN_SECONDS` of data link their windows with it in one pass (`em_rounds + 1` offline),
+then re-pair, confirm and judge their links as offline.
 
-A step without a usable model runs the offline associator's whole loop, stage by stage as
-`AssignmentAssociator.group` runs them, and keeps what it learned: the first step, one after
-the worker restarted or the lease moved to another worker (the model is the worker's, in
-memory: it changes how well a step links, never what is published once), after the
-parameters changed, or once the window's sensors or features differ from those the model was
-learned on (its arrays are indexed by them).
+The model is learned again, by the whole loop, at the first step, after `RELEARN_SECONDS` of
+data, after the parameters changed, and when a window's sensors or features differ from those
+it was learned on (its arrays are indexed by them). It is kept only when it was learned from
+`MIN_LINKS` links or more between every two neighbouring sensors: the first seconds of a
+stream hold few vehicles at the far sensors, and a model learned there linked the next ten
+minutes badly (51 % accuracy on the SUMO replay, against 79 %). It is the worker's, in memory:
+a worker that restarts, or takes over a lease, learns it again; what is published, and once,
+does not depend on it.
 """
 
 from __future__ import annotations
@@ -46,9 +47,12 @@ from roadlink.association.associators.assignment.sensors import Sensors, arrange
 from roadlink.association.associators.assignment.tracks import build_tracks, duplicate_followers
 from roadlink.association.detections import Detections, FloatArray, IntArray
 
-# Data seconds between two computations of the prior: the road's free-flow behaviour, which
-# learning only shrinks towards, drifts over tens of minutes; this is a few windows.
-PRIOR_SECONDS = 600.0
+# Data seconds a model is used for before it is learned again: traffic changes over tens of
+# minutes (a queue forms, a peak passes); at 2,000 detections/s of the SUMO replay, a model is
+# learned every 4 s of wall time.
+RELEARN_SECONDS = 600.0
+# Links a model must have been learned from between every two neighbouring sensors to be kept.
+MIN_LINKS = 30
 # Deployments whose models a worker keeps (a model is a few arrays per sensor).
 MAX_MODELS = 256
 
@@ -58,8 +62,8 @@ class Learned:
     """What a step learned, for the next step of the same live association."""
 
     key: tuple[Any, ...]  # the parameters, sensors and features it was learned with
-    prior: SegmentModel
-    prior_clock: float  # the data clock the prior was computed at
+    prior: SegmentModel  # what learning shrinks towards (anchors learn from it)
+    clock: float  # the data clock it was learned at
     model: SegmentModel
 
 
@@ -76,7 +80,11 @@ class Models:
             self._models.move_to_end(deployment)
         return learned
 
-    def put(self, deployment: Any, learned: Learned) -> None:
+    def put(self, deployment: Any, learned: Learned | None) -> None:
+        """Keep `learned` for the deployment's next step (None: nothing worth keeping)."""
+        if learned is None:
+            self._models.pop(deployment, None)
+            return
         self._models[deployment] = learned
         self._models.move_to_end(deployment)
         while len(self._models) > self._size:
@@ -85,32 +93,41 @@ class Models:
 
 def associate_window(
     d: Detections, params: AssignmentParams, clock: float, learned: Learned | None
-) -> tuple[IntArray, FloatArray, Learned]:
+) -> tuple[IntArray, FloatArray, Learned | None]:
     """The window's groups (-1: unassigned) and link confidences, as `AssignmentAssociator`
-    answers them, and the model for the next step. `d` must hold two sensor positions or more
-    and no labels (the associator never sees them)."""
+    answers them, and the model for the next step (None: none worth keeping). `d` must hold
+    two sensor positions or more and no labels (the associator never sees them)."""
     s = arrange(d, params)
     effective = within_time_scale(params, s.typical_travel_time())
     key = _key(params, s, d)
-    warm = learned is not None and learned.key == key
-    if warm and learned is not None and clock - learned.prior_clock < PRIOR_SECONDS:
-        prior, prior_clock = learned.prior, learned.prior_clock
+    if learned is not None and learned.key == key and clock - learned.clock < RELEARN_SECONDS:
+        # One pass with the model; two where lane order anchors the links, as offline their
+        # weights come from tracks built without them.
+        prior, model = learned.prior, learned.model
+        rounds = 2 if _anchored(s, effective) else 1
     else:
-        prior, prior_clock = segment_prior(s, effective.max_skip + 1, effective), clock
-    if warm and learned is not None:
-        # One pass from the last step's model; two where lane order anchors the links, as
-        # offline their weights come from tracks built without them.
-        model, rounds = learned.model, 2 if _anchored(s, effective) else 1
-    else:
+        learned = None
+        prior = segment_prior(s, effective.max_skip + 1, effective)
         model, rounds = prior, effective.em_rounds + 1
     built, model, anchor = _link(s, effective, prior, model, rounds)
     track, confidence = _repair(s, effective, model, built, anchor)
     target = confirm_targets(s, model, effective, track)
     target, kept = cut_weak_links(s, target, confidence, effective.min_confidence)
-    # Learned from the sequential pass's tracks, as offline: learning from the re-paired ones
-    # cost half a point of accuracy on the SUMO replay (docs/benchmarks.md).
-    following = learn_segments(s, built, effective, prior)
-    return target, kept, Learned(key, prior, prior_clock, following)
+    if learned is None and _learned_enough(s, built):
+        learned = Learned(key, prior, clock, model)
+    return target, kept, learned
+
+
+def _learned_enough(s: Sensors, track: IntArray) -> bool:
+    """Whether every segment between neighbouring sensors has MIN_LINKS links in `track`: a
+    window of the first seconds of a stream holds few vehicles at the far sensors, and a model
+    learned there (its prior a mode over a few pairs) would link the next windows badly."""
+    assigned = np.flatnonzero(track >= 0)
+    chain = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
+    a, b = chain[:-1], chain[1:]
+    neighbours = (track[a] == track[b]) & (s.sensor[b] - s.sensor[a] == 1)
+    links = np.bincount(s.sensor[a[neighbours]], minlength=s.positions.size)
+    return bool(links[:-1].min() >= MIN_LINKS)  # two sensors or more: never empty
 
 
 def _key(params: AssignmentParams, s: Sensors, d: Detections) -> tuple[Any, ...]:
