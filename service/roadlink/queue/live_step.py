@@ -2,11 +2,13 @@
 
 A step reads the window of detections not yet settled, [floor - lateness, data clock], runs the
 live association's associator over it (`association.pipeline.associate`, the offline one,
-unchanged), decides which vehicles are done (`association.live.settle`), and publishes them with
-the next vehicle ids, in one transaction with the detections it settled and the new state,
-guarded by the lease. A worker killed at any point before that commit leaves everything as it
-was, and the next step (its own, or another worker's once the lease expired) does the work
-again: nothing is lost, nothing is published twice, and ids run on.
+unchanged; `assignment` with the model the worker learned at an earlier step,
+`association.live_assignment`), decides which vehicles are done (`association.live.settle`),
+and publishes them with the next vehicle ids, in one transaction with the detections it
+settled and the new state, guarded by the lease. A worker killed at any point before that
+commit leaves everything as it was, and the next step (its own, or another worker's once the
+lease expired) does the work again: nothing is lost, nothing is published twice, and ids run
+on.
 """
 
 from __future__ import annotations
@@ -177,11 +179,12 @@ def _associate(window: KeyedDetections, claimed: ClaimedLive) -> tuple[IntArray,
 
 
 def _associate_incrementally(d: Detections, claimed: ClaimedLive) -> tuple[IntArray, Any]:
-    """`assignment` from the model this worker learned at the deployment's last step, and the
-    model learned now kept for its next (association/live_assignment.py)."""
+    """`assignment` with the model this worker learned at an earlier step of the deployment (or
+    learning it now), the model kept for the next step (association/live_assignment.py)."""
     params = parse_params(claimed.associator, claimed.params)
     assert isinstance(params, AssignmentParams)
     clock = float(d.timestamp.max()) if claimed.data_clock is None else claimed.data_clock
+    # The model is this process's: a worker that restarted or took the lease over learns anew.
     learned = MODELS.get(claimed.deployment_id)
     groups, confidence, learned = associate_window(d.without_labels(), params, clock, learned)
     MODELS.put(claimed.deployment_id, learned)
