@@ -2,11 +2,13 @@
 
 A step reads the window of detections not yet settled, [floor - lateness, data clock], runs the
 live association's associator over it (`association.pipeline.associate`, the offline one,
-unchanged), decides which vehicles are done (`association.live.settle`), and publishes them with
-the next vehicle ids, in one transaction with the detections it settled and the new state,
-guarded by the lease. A worker killed at any point before that commit leaves everything as it
-was, and the next step (its own, or another worker's once the lease expired) does the work
-again: nothing is lost, nothing is published twice, and ids run on.
+unchanged; `assignment` with the model the worker learned at an earlier step,
+`association.live_assignment`), decides which vehicles are done (`association.live.settle`),
+and publishes them with the next vehicle ids, in one transaction with the detections it
+settled and the new state, guarded by the lease. A worker killed at any point before that
+commit leaves everything as it was, and the next step (its own, or another worker's once the
+lease expired) does the work again: nothing is lost, nothing is published twice, and ids run
+on.
 """
 
 from __future__ import annotations
@@ -22,9 +24,11 @@ import orjson
 from sqlalchemy.orm import Session, sessionmaker
 
 from roadlink.association.associators import AssociationError
-from roadlink.association.detections import IntArray
+from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.detections import Detections, IntArray
 from roadlink.association.live import Horizon, done_at, lone_groups, settle
-from roadlink.association.pipeline import associate
+from roadlink.association.live_assignment import Models, associate_window
+from roadlink.association.pipeline import associate, parse_params
 from roadlink.db.engine import transaction
 from roadlink.db.live_records import (
     ClaimedLive,
@@ -42,6 +46,9 @@ from roadlink.queue.webhooks import record_vehicles_published
 log = logging.getLogger(__name__)
 
 FEATURES = ("lane", "length", "vehicle_class")
+
+# The models this worker's `assignment` steps learned, by deployment (live_assignment.py).
+MODELS = Models()
 
 
 def on_vehicles_published(session: Session, vehicles: list[LiveVehicle]) -> None:
@@ -137,15 +144,16 @@ def compute_step(session: Session, claimed: ClaimedLive, *, lease_seconds: float
         )
     groups, confidence = _associate(window, claimed)
     decided = settle(d, groups, horizon, claimed.floor)
+    rows = _Rows(window)
     vehicles = [
-        _vehicle(window, members, f"V{claimed.next_vehicle + k}", confidence)
+        _vehicle(rows, members, f"V{claimed.next_vehicle + k}", confidence)
         for k, members in enumerate(decided.publish)
     ]
     return StepOutcome(
         claimed=claimed,
         vehicles=vehicles,
-        unassigned=_keys(window, decided.unassigned),
-        late=_keys(window, decided.late),
+        unassigned=rows.keys(decided.unassigned.tolist()),
+        late=rows.keys(decided.late.tolist()),
         floor=decided.floor,
         open_tracks=decided.open_tracks,
         open_detections=decided.open_detections,
@@ -161,11 +169,26 @@ def _associate(window: KeyedDetections, claimed: ClaimedLive) -> tuple[IntArray,
     if d.sensor_positions.size < 2:
         return lone_groups(len(d)), None
     try:
+        if claimed.associator == "assignment":
+            return _associate_incrementally(d, claimed)
         result = associate(d, claimed.associator, claimed.params)
     except AssociationError as exc:  # e.g. a supervised associator on unlabelled data
         log.warning("live association of %s: %s", claimed.deployment_id, exc)
         return lone_groups(len(d)), None
     return result.groups, result.link_confidence
+
+
+def _associate_incrementally(d: Detections, claimed: ClaimedLive) -> tuple[IntArray, Any]:
+    """`assignment` with the model this worker learned at an earlier step of the deployment (or
+    learning it now), the model kept for the next step (association/live_assignment.py)."""
+    params = parse_params(claimed.associator, claimed.params)
+    assert isinstance(params, AssignmentParams)
+    clock = float(d.timestamp.max()) if claimed.data_clock is None else claimed.data_clock
+    # The model is this process's: a worker that restarted or took the lease over learns anew.
+    learned = MODELS.get(claimed.deployment_id)
+    groups, confidence, learned = associate_window(d.without_labels(), params, clock, learned)
+    MODELS.put(claimed.deployment_id, learned)
+    return groups, confidence
 
 
 def _take(window: KeyedDetections, index: IntArray) -> KeyedDetections:
@@ -177,43 +200,59 @@ def _take(window: KeyedDetections, index: IntArray) -> KeyedDetections:
     )
 
 
-def _keys(window: KeyedDetections, index: IntArray) -> list[tuple[str, int, float]]:
-    d = window.detections
-    return [(str(window.batch_ids[i]), int(window.rows[i]), float(d.timestamp[i])) for i in index]
+class _Rows:
+    """The window's columns as Python values, converted once a step: a step publishes hundreds
+    of vehicles of a few detections each, and reading the columns per vehicle (the features'
+    masks over the whole window included) cost more than the associator's own linking pass."""
+
+    def __init__(self, window: KeyedDetections) -> None:
+        d = window.detections
+        self.detection_id: list[Any] = window.detection_ids.tolist()
+        self.batch_id: list[Any] = window.batch_ids.tolist()
+        self.row: list[int] = window.rows.tolist()
+        self.sensor_id: list[Any] = d.sensor_id.tolist()
+        self.position: list[float] = d.position.tolist()
+        self.velocity: list[float] = d.velocity.tolist()
+        self.timestamp: list[float] = d.timestamp.tolist()
+        self.target: list[Any] = d.target.tolist()
+        reported = d.features
+        self.features = {f: d.feature_values(f) for f in FEATURES if f in reported}
+
+    def keys(self, members: list[int]) -> list[tuple[str, int, float]]:
+        return [(str(self.batch_id[i]), self.row[i], self.timestamp[i]) for i in members]
+
+    def item(self, i: int) -> dict[str, Any]:
+        """Detection `i` as the feed shows it."""
+        item: dict[str, Any] = {
+            "detection_id": self.detection_id[i],
+            "batch_id": self.batch_id[i],
+            "sensor_id": self.sensor_id[i],
+            "position": self.position[i],
+            "velocity": self.velocity[i],
+            "timestamp": self.timestamp[i],
+        }
+        if self.target[i] is not None:
+            item["target"] = self.target[i]
+        for f, values in self.features.items():
+            if values[i] is not None:
+                item[f] = values[i]
+        return item
 
 
-def _vehicle(
-    window: KeyedDetections, members: IntArray, vehicle_id: str, link_confidence: Any
-) -> NewVehicle:
-    d = window.detections
+def _vehicle(rows: _Rows, members: IntArray, vehicle_id: str, link_confidence: Any) -> NewVehicle:
     confidence = None
     if link_confidence is not None:
         links = link_confidence[members]
         confidence = float(np.prod(links[np.isfinite(links)]))
-    features = [f for f in FEATURES if f in d.features]
-    values = {f: d.feature_values(f) for f in features}
-    detections = []
-    for i in members.tolist():
-        item: dict[str, Any] = {
-            "detection_id": window.detection_ids[i],
-            "batch_id": window.batch_ids[i],
-            "sensor_id": d.sensor_id[i],
-            "position": float(d.position[i]),
-            "velocity": float(d.velocity[i]),
-            "timestamp": float(d.timestamp[i]),
-        }
-        if d.target[i] is not None:
-            item["target"] = d.target[i]
-        for f in features:
-            if values[f][i] is not None:
-                item[f] = values[f][i]
-        detections.append(item)
+    index = members.tolist()
+    detections = [rows.item(i) for i in index]
+    times = [rows.timestamp[i] for i in index]
     return NewVehicle(
         vehicle_id=vehicle_id,
         confidence=confidence,
-        first_timestamp=float(d.timestamp[members].min()),
-        last_timestamp=float(d.timestamp[members].max()),
+        first_timestamp=min(times),
+        last_timestamp=max(times),
         detections=detections,
         detections_json=orjson.dumps(detections).decode(),
-        keys=_keys(window, members),
+        keys=rows.keys(index),
     )
