@@ -324,7 +324,8 @@ def test_assignment_on_committed_sumo_traffic_holds_its_measured_accuracy(scenar
 
 
 # The same dense and free-flowing traffic seen by loops that read speeds with a 6 and a 10 %
-# error (benchmarks/sumo_accuracy.py --speed-noise, seed 0): `assignment`'s accuracy, and what
+# error (benchmarks/sumo_accuracy.py --speed-noise, seed 0, committed in tests/data/
+# sumo-speed-noise): `assignment`'s accuracy, and what
 # it was without the track's pace read from its travel times (`pace_weight=0`, as before
 # `assignment/pace.py`).
 MEASURED_WITH_SPEED_ERROR = {
@@ -335,7 +336,9 @@ MEASURED_WITH_SPEED_ERROR = {
 
 @pytest.mark.parametrize("case", sorted(MEASURED_WITH_SPEED_ERROR))
 def test_the_pace_holds_tracks_together_where_speeds_are_read_poorly(case):
-    d = read_detections_csv((COMMITTED_SUMO / f"{case}.csv").read_text())
+    d = read_detections_csv(
+        (COMMITTED_SUMO.parent / "sumo-speed-noise" / f"{case}.csv").read_text()
+    )
     measured, without_pace = MEASURED_WITH_SPEED_ERROR[case]
     result = associate(d, "assignment")
     blind = associate(d, "assignment", {"pace_weight": 0.0})
