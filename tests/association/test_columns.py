@@ -41,6 +41,13 @@ def test_magnitudes_beyond_the_limit_are_problems_and_the_limit_is_not():
     assert "beyond the limit" in problems[0].message
 
 
+def test_an_integer_beyond_any_float_is_a_problem_not_a_crash():
+    # Python's ints have no limit; numpy cannot make a float of 10**400 (OverflowError).
+    _, rows, problems = checked([1.0, 10**400, -(10**400), 2])
+    assert rows == [(2, "timestamp"), (3, "timestamp")]
+    assert all("beyond the limit" in p.message and "401 digits" in p.message for p in problems)
+
+
 def test_a_detection_error_lists_the_first_twenty_and_counts_the_rest():
     problems = [Problem(i, "lane", "bad") for i in range(1, 26)]
     error = DetectionError(problems)

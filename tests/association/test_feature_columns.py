@@ -67,6 +67,7 @@ def test_classes_are_stripped_short_printable_words():
         ("length", math.inf),
         ("length", math.nan),
         ("lane", math.nan),
+        ("length", 10**400),
         ("vehicle_class", "x" * 33),
         ("vehicle_class", 5),
         ("vehicle_class", "car\x00x"),

@@ -71,10 +71,7 @@ def float_column(name: str, values: object, problems: list[Problem]) -> FloatArr
         for i, value in enumerate(raw):
             number = _as_floats([value])
             if number is None:
-                shown = value.item() if isinstance(value, np.generic) else value
-                problems.append(
-                    Problem(i + 1, name, f"must be a number in {PLAIN_DECIMAL_HINT}, got {shown!r}")
-                )
+                problems.append(Problem(i + 1, name, _not_a_number(value)))
                 not_number[i] = True
             else:
                 out[i] = number[0]
@@ -89,6 +86,15 @@ def float_column(name: str, values: object, problems: list[Problem]) -> FloatArr
             )
         )
     return out
+
+
+def _not_a_number(value: object) -> str:
+    """Why a value is no float: an integer too large for one (Python's ints have no limit), or
+    not a number in plain decimal notation."""
+    if type(value) is int:
+        return f"magnitude is beyond the limit {MAX_ABS_VALUE:g}, got {len(str(abs(value)))} digits"
+    shown = value.item() if isinstance(value, np.generic) else value
+    return f"must be a number in {PLAIN_DECIMAL_HINT}, got {shown!r}"
 
 
 def _as_floats(values: object) -> FloatArray | None:
@@ -117,7 +123,7 @@ def _as_floats(values: object) -> FloatArray | None:
         return None
     try:
         return array.astype(np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond any float
         return None
 
 
