@@ -201,13 +201,62 @@ def test_in_a_steady_crawl_the_speeds_keep_the_chains_from_drifting(monkeypatch)
     assert np.mean([anchors_right(d) for d in cases]) <= 0.1
 
 
-def test_no_anchors_without_lanes_and_lengths() -> None:
-    d = lane_queue()
-    blind = Detections.from_columns(d.position, d.velocity, d.timestamp, target=d.target)
+def lane_queue_anchors(d: Detections) -> tuple[np.ndarray, np.ndarray]:
     params = AssignmentParams()
-    s = arrange(blind, params)
-    anchor, margin = lane_order_anchors(s, segment_prior(s, params.max_skip + 1, params), params)
-    assert (anchor < 0).all() and (margin == 0).all()
+    s = arrange(d, params)
+    return lane_order_anchors(s, segment_prior(s, params.max_skip + 1, params), params)
+
+
+def test_no_anchors_without_lanes() -> None:
+    d = lane_queue()
+    for blind in (
+        Detections.from_columns(d.position, d.velocity, d.timestamp, target=d.target),
+        Detections.from_columns(
+            d.position, d.velocity, d.timestamp, target=d.target, length=d.length
+        ),
+    ):
+        anchor, margin = lane_queue_anchors(blind)
+        assert (anchor < 0).all() and (margin == 0).all()
+
+
+def lanes_alone(d: Detections) -> Detections:
+    return Detections.from_columns(
+        d.position, d.velocity, d.timestamp, target=d.target, lane=d.lane
+    )
+
+
+def test_lanes_alone_anchor_a_lane_keeping_queue_by_time() -> None:
+    d = lane_queue()
+    anchor, _ = lane_queue_anchors(lanes_alone(d))
+    anchored = np.flatnonzero(anchor >= 0)
+    labels = d.target.astype(str)
+    # Time alone pins fewer chains than time and length, but those it pins are right.
+    assert anchored.size >= 0.5 * np.count_nonzero(lane_queue_anchors(d)[0] >= 0)
+    assert np.mean(labels[anchor[anchored]] == labels[anchored]) >= 0.95
+
+
+def test_a_pair_without_both_lengths_keeps_a_share_of_its_margin(monkeypatch) -> None:
+    d = lanes_alone(lane_queue())
+    monkeypatch.setattr(anchors, "LANE_ONLY_MARGIN", 1.0)
+    full_anchor, full_margin = lane_queue_anchors(d)
+    monkeypatch.setattr(anchors, "LANE_ONLY_MARGIN", 0.5)
+    anchor, margin = lane_queue_anchors(d)
+    np.testing.assert_array_equal(anchor, full_anchor)
+    np.testing.assert_allclose(margin, 0.5 * full_margin)
+
+
+def test_a_detection_without_a_length_stays_in_its_lanes_chain() -> None:
+    d = lane_queue()
+    length = d.length.copy()
+    length[::7] = np.nan  # a loop that misses a length now and then
+    gappy = Detections.from_columns(
+        d.position, d.velocity, d.timestamp, target=d.target, lane=d.lane, length=length
+    )
+    anchor, _ = lane_queue_anchors(gappy)
+    labels = d.target.astype(str)
+    unmeasured = np.flatnonzero(np.isnan(length) & (anchor >= 0))
+    assert unmeasured.size >= 0.5 * np.count_nonzero(np.isnan(length) & (d.position > 0))
+    assert np.mean(labels[anchor[unmeasured]] == labels[unmeasured]) >= 0.95
 
 
 def test_anchors_lift_assignment_in_a_queue() -> None:

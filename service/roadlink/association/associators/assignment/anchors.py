@@ -4,10 +4,10 @@ A vehicle that keeps its lane between two sensors cannot pass another that keeps
 lane, traffic is first in, first out, and two vehicles that follow each other in a lane take
 about the same time over the segment (in a queue both crawl in the same wave; in free flow both
 keep about the same speed, so the error of the kinematic prediction barely changes). Where
-detectors report lane and length, each lane's detections at two neighbouring sensors are
-aligned in time order as one chain (`smooth_chain`), scored as a log likelihood ratio: each
-pair by its lengths and, loosely, its kinematic travel time; each step from one pair to the next
-by the change of travel time, against a spread each segment learns from its own chains
+detectors report lanes, each lane's detections at two neighbouring sensors are aligned in time
+order as one chain (`smooth_chain`), scored as a log likelihood ratio: each pair by its lengths
+(where both were measured) and, loosely, its kinematic travel time; each step from one pair to
+the next by the change of travel time, against a spread each segment learns from its own chains
 (`learned_smoothness`: a queue's followers differ more than free flow's). A stretch of pairs
 shifted by a vehicle must skip a vehicle or jump in travel time at each end where the true
 alignment flows on, so the chain's links are right far more often than the sparse assignment's
@@ -60,6 +60,11 @@ SKIP = 1.5
 # A chain may start afresh after any earlier pair at JUMP: no tie in travel time to the pair
 # before (a gap of more than BAND vehicles, or a break in the flow).
 JUMP = 6.0
+# A pair without both lengths (detectors that report lane alone) is pinned by time alone, so a
+# chain shifted by a vehicle scores nearly as well as the true one: measured on SUMO queues and
+# slow zones (lane alone against lane and length), such an anchor is right as often as one with
+# lengths of this share of its margin.
+LANE_ONLY_MARGIN = 0.65
 # No vehicle passes at more than this multiple of the fastest speed either sensor measured.
 TOP_SPEED_MARGIN = 2.0
 # An anchored link's cost (-2 log density) is lowered by this much (odds of e^8): an anchor
@@ -126,12 +131,14 @@ def lane_order_anchors(
 ) -> tuple[IntArray, FloatArray]:
     """Each detection's anchored predecessor at the sensor before (-1 = none), and by how much
     its chain beat the best rival there (`chain_margins`, log likelihood); none where detectors
-    do not report both lane and length."""
+    do not report lanes. A pair without both lengths is weighed by time alone, its margin
+    discounted to LANE_ONLY_MARGIN."""
     anchor = np.full(s.time.size, -1, dtype=np.int64)
     margin = np.zeros(s.time.size)
     f = s.features
-    if f is None or model.features is None or not f.has_length():
+    if f is None or model.features is None or not f.has_lane():
         return anchor, margin
+    measured = np.isfinite(f.log_length)
     for k in range(s.positions.size - 1):
         terms = [
             (*_pair_terms(s, model, params, k, a, b, longest), a, b)
@@ -141,7 +148,8 @@ def lane_order_anchors(
         for gain, log_travel, kinematic, a, b in terms:
             pairs, margins = chain_margins(gain, log_travel, kinematic, smoothness)
             for (i, j), m in zip(pairs, margins, strict=True):
-                anchor[b[j]], margin[b[j]] = a[i], m
+                timed_only = not (measured[a[i]] and measured[b[j]])
+                anchor[b[j]], margin[b[j]] = a[i], m * LANE_ONLY_MARGIN if timed_only else m
     return anchor, margin
 
 
@@ -179,7 +187,7 @@ def _step_changes(
 
 
 def _segment_blocks(s: Sensors, k: int) -> list[tuple[IntArray, IntArray, float]]:
-    """Every lane's blocks (`_blocks`) of detections with a length at sensors k and k + 1."""
+    """Every lane's blocks (`_blocks`) of detections at sensors k and k + 1."""
     f = s.features
     assert f is not None
     up, down = s.members(k), s.members(k + 1)
@@ -187,9 +195,7 @@ def _segment_blocks(s: Sensors, k: int) -> list[tuple[IntArray, IntArray, float]
     for lane in np.unique(f.lane[up]):
         if lane == NO_LANE:
             continue
-        lane_up = up[(f.lane[up] == lane) & np.isfinite(f.log_length[up])]
-        lane_down = down[(f.lane[down] == lane) & np.isfinite(f.log_length[down])]
-        blocks.extend(_blocks(s, k, lane_up, lane_down))
+        blocks.extend(_blocks(s, k, up[f.lane[up] == lane], down[f.lane[down] == lane]))
     return blocks
 
 
@@ -224,9 +230,10 @@ def _pair_terms(
     longest: float,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Every pair's gain, its log travel time and its kinematic error (log travel time against
-    the gap at the mean speed). The gain is the pair's length likelihood ratio and its
-    kinematic error's log density (`_kinematic_gain`); -inf where faster than any vehicle or
-    slower than `longest` (which keeps each row's chain to a band of columns)."""
+    the gap at the mean speed). The gain is the pair's length likelihood ratio (where both
+    lengths were measured) and its kinematic error's log density (`_kinematic_gain`); -inf
+    where faster than any vehicle or slower than `longest` (which keeps each row's chain to a
+    band of columns)."""
     assert s.features is not None and model.features is not None
     gap = s.positions[k + 1] - s.positions[k]
     shortest = gap / (TOP_SPEED_MARGIN * max(s.top_speed[k], s.top_speed[k + 1]))
@@ -236,10 +243,15 @@ def _pair_terms(
         log_travel = np.where(possible, np.log(travel), np.nan)
     speed = 0.5 * (s.speed[a][:, None] + s.speed[b][None, :])
     kinematic = log_travel - np.log(gap / speed)
-    # The difference of two readings carries both their errors.
-    length_spread = np.sqrt(2.0) * model.features.length_spread
-    gain = _length_gain(s.features.log_length, a, b, length_spread, model.features, k + 1)
-    gain += _kinematic_gain(s, params, a, b, kinematic)
+    gain = _kinematic_gain(s, params, a, b, kinematic)
+    log_length = s.features.log_length
+    measured_a, measured_b = np.isfinite(log_length[a]), np.isfinite(log_length[b])
+    if measured_a.any() and measured_b.any():
+        # The difference of two readings carries both their errors.
+        length_spread = np.sqrt(2.0) * model.features.length_spread
+        known = np.where(np.isfinite(log_length), log_length, 0.0)
+        length = _length_gain(known, a, b, length_spread, model.features, k + 1)
+        gain += np.where(measured_a[:, None] & measured_b[None, :], length, 0.0)
     return np.where(possible, gain, -np.inf), log_travel, kinematic
 
 

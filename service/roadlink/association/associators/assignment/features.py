@@ -81,6 +81,9 @@ class SensorFeatures:
     def has_length(self) -> bool:
         return bool(np.isfinite(self.log_length).any())
 
+    def has_lane(self) -> bool:
+        return bool((self.lane != NO_LANE).any())
+
 
 @dataclass
 class FeatureModel:
