@@ -111,7 +111,7 @@ def associate_window(
         model, rounds = prior, effective.em_rounds + 1
     built, model, anchor = _link(s, effective, prior, model, rounds)
     track, confidence = _repair(s, effective, model, built, anchor)
-    target = confirm_targets(s, model, effective, track)
+    target = confirm_targets(s, model, effective, track, anchor)
     target, kept = cut_weak_links(s, target, confidence, effective.min_confidence)
     if learned is None and _learned_enough(s, built):
         learned = Learned(key, prior, clock, model)
@@ -141,7 +141,12 @@ def _key(params: AssignmentParams, s: Sensors, d: Detections) -> tuple[Any, ...]
 
 
 def _anchored(s: Sensors, params: AssignmentParams) -> bool:
-    return bool(params.lane_anchors and params.feature_weight > 0 and s.features is not None)
+    return bool(
+        params.lane_anchors
+        and params.feature_weight > 0
+        and s.features is not None
+        and s.features.has_lane()
+    )
 
 
 def _link(

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.anchors import Anchors
 from roadlink.association.associators.assignment.confirmation import (
     confirm_targets,
     ends_explained,
@@ -72,20 +73,38 @@ def test_targets_are_numbered_from_zero_in_track_order():
     assert confirmed(d, np.full(11, -1)) == [-1] * 11
 
 
-def test_evidence_is_what_the_links_save_over_leaving_their_detections_apart():
+def evidence_of_a_loose_pair(anchors: Anchors | None = None) -> np.ndarray:
+    """The evidence of the two vehicles' tracks and of a pair of reports linked loosely (rows 10
+    and 11: 100 m in 6.8 s at 20 m/s, where 5 s is exact)."""
     d = road_with(Detections.from_columns([100.0, 200.0], [20.0, 20.0], [3.0, 9.8]))
     s = arrange(d, PARAMS)
     model = kinematic_model(5, PARAMS)
     track = np.array([*VEHICLES, 2, 2])
     chain = np.flatnonzero(track >= 0)
     chain = chain[np.lexsort((s.sensor[chain], track[chain]))]
-    evidence = track_evidence(s, model, PARAMS, chain, track[chain])
+    return track_evidence(s, model, PARAMS, chain, track[chain], anchors)
+
+
+def test_evidence_is_what_the_links_save_over_leaving_their_detections_apart():
+    evidence = evidence_of_a_loose_pair()
     # The vehicles' links are exact in time and speed: each of the four saves nearly the whole
     # gate cost (the pace term sees speeds relative to each sensor's median, which the extra
     # reports move a little).
     assert evidence[:2] == pytest.approx([4 * PARAMS.gate_cost] * 2, rel=0.01)
     # The loose link saves something, less than a target needs.
     assert 0.0 < evidence[2] < PARAMS.min_track_evidence
+
+
+def test_an_anchored_link_counts_its_anchor_as_evidence():
+    plain = evidence_of_a_loose_pair()
+    predecessor = np.full(12, -1)
+    predecessor[11] = 10  # the loose link, anchored by its lane's order
+    bonus = np.where(predecessor >= 0, 5.0, 0.0)
+    anchored = evidence_of_a_loose_pair(Anchors(predecessor, bonus))
+    assert anchored[:2] == pytest.approx(plain[:2])
+    assert anchored[2] == pytest.approx(plain[2] + 5.0)
+    # Enough to make the pair a target, as the linking that chose it for its anchor judged.
+    assert anchored[2] >= PARAMS.min_track_evidence
 
 
 def test_a_track_start_and_end_are_explained_by_the_road_or_the_window():

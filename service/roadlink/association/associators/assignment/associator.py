@@ -77,6 +77,6 @@ class AssignmentAssociator(Associator):
                 progress((rounds + sweep + 1) / passes)
         if params.refine_sweeps == 0:
             confidence = link_confidence(s, model, params, track)
-        target = confirm_targets(s, model, params, track)
+        target = confirm_targets(s, model, params, track, anchor)
         target, self.link_confidence = cut_weak_links(s, target, confidence, params.min_confidence)
         return target

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
@@ -22,7 +23,11 @@ from roadlink.association.detections import FloatArray, IntArray
 
 
 def confirm_targets(
-    s: Sensors, model: SegmentModel, params: AssignmentParams, track: IntArray
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    track: IntArray,
+    anchors: Anchors | None = None,
 ) -> IntArray:
     """Keep the tracks that are better explained as targets than as false alarms; number them.
 
@@ -31,7 +36,8 @@ def confirm_targets(
     links; their evidence stays small, a real target's does not. A track shorter than
     `min_track_length` is kept only when the batch's time window explains its shortness: the
     batch cut it off at both ends (`starts_explained`, `ends_explained`), as it does a vehicle
-    that passed the first sensor in its last seconds.
+    that passed the first sensor in its last seconds. Links are costed as the linking costed
+    them, lane-order `anchors` included.
     """
     out = np.full(track.size, -1, dtype=np.int64)
     assigned = np.flatnonzero(track >= 0)
@@ -43,7 +49,7 @@ def confirm_targets(
     end = np.r_[start[1:], chain.size] - 1
     sizes = np.bincount(ids)
     # Links are judged by their evidence; a lone detection has none to judge, only its place.
-    evidence = track_evidence(s, model, params, chain, ids)
+    evidence = track_evidence(s, model, params, chain, ids, anchors)
     convincing = (evidence >= params.min_track_evidence) | (sizes == 1)
     long_enough = sizes >= params.min_track_length
     long_enough[ids[start]] |= starts_explained(s, model, chain[start]) & ends_explained(
@@ -56,13 +62,18 @@ def confirm_targets(
 
 
 def track_evidence(
-    s: Sensors, model: SegmentModel, params: AssignmentParams, chain: IntArray, ids: IntArray
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    chain: IntArray,
+    ids: IntArray,
+    anchors: Anchors | None = None,
 ) -> FloatArray:
     """Per track index, the sum of what its links save over leaving their detections apart.
 
     `chain` holds the tracks' detections sorted by track, then sensor, and `ids` their tracks.
     Each link a -> b is costed as the forward pass saw it: against the track's mean relative
-    speed up to and including a."""
+    speed up to and including a, less its anchor's bonus (`anchors.anchor_bonus`)."""
     linked = np.flatnonzero(ids[1:] == ids[:-1])
     a, b = chain[linked], chain[linked + 1]
     new_track = np.r_[True, ids[1:] != ids[:-1]]
@@ -92,7 +103,9 @@ def track_evidence(
         prv[b] = a
         before.pace = incoming_pace(model.pace, s, prv, a)
     pairs = Pairs.between(s, model, params, a, b)
-    saving = params.gate_cost - link_cost(params, model, pairs, before, after, s)
+    # An anchored link was made for its lane order (`anchors`): that is evidence too.
+    cost = link_cost(params, model, pairs, before, after, s) - anchor_bonus(pairs, anchors)
+    saving = params.gate_cost - cost
     evidence = np.bincount(ids[linked], weights=np.maximum(saving, 0.0), minlength=ids.max() + 1)
     return np.asarray(evidence, dtype=np.float64)
 
