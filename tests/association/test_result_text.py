@@ -124,3 +124,27 @@ def test_any_ids_groups_and_links_write_as_the_plain_writers_do(rows, seed, link
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(result_text, "_NEEDS_QUOTES", re.compile(r"|"))
         assert fast == result.to_matrix_csv()
+
+
+@pytest.mark.parametrize("shared_position", [False, True])
+def test_the_matrix_with_sensors_at_one_position_is_the_matrix_written_cell_by_cell(
+    shared_position, monkeypatch
+):
+    """Sensors at the same position: a target's detections by sensor (in road order, ties by
+    name) are then not in the order `target_members` gives them (by position, then time), and
+    the targets' confidences are the products in that order all the same."""
+    rng = np.random.default_rng(5)
+    names = ["E", "D", "C", "B", "A", "F"]
+    n = 20 * len(names)
+    k = np.arange(n) % len(names)
+    sensors = np.array(names, dtype=object)[k]
+    position = (np.array([0.0, 0, 0, 0, 0, 100]) if shared_position else 10.0 * np.arange(6))[k]
+    d = Detections.from_columns(
+        position, rng.uniform(10, 30, n), np.arange(n, dtype=float), list(sensors)
+    )
+    groups = np.where(np.arange(n) == 7, -1, np.arange(n) // len(names))
+    confidence = np.where(k == 0, np.nan, rng.random(n))
+    result = build_result(d, groups, "x", {}, link_confidence=confidence)
+    fast = result.to_matrix_csv()
+    monkeypatch.setattr(result_text, "_NEEDS_QUOTES", re.compile(r"|"))  # always cell by cell
+    assert fast == result.to_matrix_csv()

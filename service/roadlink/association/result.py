@@ -17,7 +17,7 @@ from roadlink.association.csvio import (
     spreadsheet_safe_texts,
 )
 from roadlink.association.detections import Detections, FloatArray, IntArray, feature_arrays
-from roadlink.association.result_text import float_texts, matrix_csv
+from roadlink.association.result_text import MatrixPlacement, float_texts, matrix_csv
 from roadlink.association.scores import Metrics, score_grouping
 
 
@@ -68,9 +68,14 @@ class AssociationResult:
         by which a product is unchanged), so the same floats."""
         if self.link_confidence is None or not members:
             return [None] * len(members)
-        links = self.link_confidence[np.concatenate(members)]
+        return self.link_products(np.concatenate(members), np.array([m.size for m in members]))
+
+    def link_products(self, order: IntArray, sizes: IntArray) -> list[float | None]:
+        """`target_confidences` of the targets whose members, each in `target_members`' order,
+        are `order` cut into runs of `sizes` (none 0): the same floats, by the same steps."""
+        assert self.link_confidence is not None
+        links = self.link_confidence[order]
         links = np.where(np.isfinite(links), links, 1.0)
-        sizes = np.array([m.size for m in members])
         return list(np.multiply.reduceat(links, np.cumsum(sizes) - sizes).tolist())
 
     def to_dict(self) -> dict[str, Any]:
@@ -156,26 +161,37 @@ class AssociationResult:
         detection does not report it; without features the matrix is as it always was.
         """
         d = self.detections
-        sensors = _sensors_in_road_order(d)
-        column = {sid: k for k, sid in enumerate(sensors)}
-        # Each column formatted once (float_texts: `repr` of each, formatted by orjson).
-        ids = spreadsheet_safe_texts(d.detection_id.tolist())
-        columns = {
-            "detection_id": ids,
-            "velocity": float_texts(d.velocity),
-            "timestamp": float_texts(d.timestamp),
-        }
-        if self.link_confidence is not None:
-            links = float_texts(self.link_confidence)
-            for i in np.flatnonzero(np.isnan(self.link_confidence)).tolist():
-                links[i] = ""
-            columns["link_confidence"] = links
-        for name in d.features:
-            columns[name] = feature_cells_of(d, name)
+        sensors, sensor, ordered = _sensor_columns(d)
+        fields = ["detection_id", "velocity", "timestamp"]
+        fields += ["link_confidence"] if self.link_confidence is not None else []
+        fields += list(d.features)
+
+        def columns_of(index: IntArray | None) -> dict[str, list[str]]:
+            """Each field's cells of the detections `index` (all, in order, when None), each
+            column formatted at once (float_texts: `repr` of each, formatted by orjson)."""
+
+            def of(values: Any) -> Any:
+                return values if index is None else values[index]
+
+            columns = {
+                "detection_id": spreadsheet_safe_texts(of(d.detection_id).tolist()),
+                "velocity": float_texts(of(d.velocity)),
+                "timestamp": float_texts(of(d.timestamp)),
+            }
+            if self.link_confidence is not None:
+                link = of(self.link_confidence)
+                links = float_texts(link)
+                for i in np.flatnonzero(np.isnan(link)).tolist():
+                    links[i] = ""
+                columns["link_confidence"] = links
+            for name in d.features:
+                columns[name] = of(np.array(feature_cells_of(d, name), dtype=object)).tolist()
+            return columns
 
         def write_rows(writer: Any) -> None:
             """Cell by cell: a cell may list several detections (possible with K-means)."""
-            sensor_of = [column[sid] for sid in d.sensor_id.tolist()]
+            columns = columns_of(None)
+            sensor_of = sensor.tolist()
             values = list(columns.values())
             members = self.target_members()
             confidences = self.target_confidences(members)
@@ -187,7 +203,8 @@ class AssociationResult:
                 head = [f"T{k + 1}"] + ([] if confidence is None else [repr(confidence)])
                 writer.writerow(head + [";".join(v) for cell in cells for v in cell])
 
-        return matrix_csv(self, sensors, columns, write_rows)
+        placement = MatrixPlacement(sensor, ordered, columns_of)
+        return matrix_csv(self, sensors, fields, placement, write_rows)
 
 
 def result_from_dict(
@@ -287,14 +304,25 @@ def build_result(
     )
 
 
-def _sensors_in_road_order(d: Detections) -> list[str]:
-    """The distinct sensor ids by their (lowest) position, then by id."""
+def _sensor_columns(d: Detections) -> tuple[list[str], IntArray, bool]:
+    """The distinct sensor ids by their (lowest) position, then by id; each detection's index
+    in that order; and whether each sensor has one position and no two sensors share one (then
+    detections ordered by sensor are in road order, as `target_members` orders them)."""
     ids = d.sensor_id.tolist()
     names = list(dict.fromkeys(ids))  # a few distinct ids: sorted as Python, not per row
     code = {name: k for k, name in enumerate(names)}
+    codes = np.fromiter(map(code.__getitem__, ids), np.int64, len(ids))
     lowest = np.full(len(names), np.inf)
-    np.minimum.at(lowest, np.fromiter(map(code.__getitem__, ids), np.int64, len(ids)), d.position)
-    return sorted(names, key=lambda name: (lowest[code[name]], str(name)))
+    lowest[codes] = d.position
+    one_each = bool(np.array_equal(lowest[codes], d.position))
+    if not one_each:
+        lowest = np.full(len(names), np.inf)
+        np.minimum.at(lowest, codes, d.position)
+    road = sorted(range(len(names)), key=lambda k: (lowest[k], str(names[k])))
+    column = np.empty(len(names), dtype=np.int64)
+    column[road] = np.arange(len(names))
+    distinct = bool(np.all(np.diff(lowest[road]) > 0))
+    return [names[k] for k in road], column[codes], one_each and distinct
 
 
 def _detection_rows(d: Detections, features: tuple[str, ...]) -> list[dict[str, Any]]:

@@ -344,17 +344,34 @@ _NEEDS_QUOTES = re.compile(r'[,"\r\n\x00]')
 _NUMBER_FIELDS = frozenset(("velocity", "timestamp", "link_confidence", "lane", "length"))
 
 
+@dataclass(frozen=True)
+class MatrixPlacement:
+    """Where a result's detections go in its matrix: each detection's sensor column (`sensor`,
+    the index of its sensor in road order); whether ordering a target's detections by that
+    column orders them as `target_members` does (`ordered`: each sensor at one position, no two
+    at the same); and each field's cells of given detections (`columns_of`: all, in order, for
+    None)."""
+
+    sensor: Any
+    ordered: bool
+    columns_of: Callable[[Any], dict[str, list[str]]]
+
+
 def matrix_csv(
     result: AssociationResult,
     sensors: list[str],
-    columns: dict[str, list[str]],
+    fields: list[str],
+    placement: MatrixPlacement,
     write_rows: Callable[[Any], None],
 ) -> str:
-    """The matrix of `result` (its `sensors` in road order; `columns` each detection's cells by
-    field, already as text), its rows placed by numpy when every (target, sensor) cell holds at
-    most one detection; else `write_rows` writes them (the general, per-cell writer)."""
-    d = result.detections
-    fields = list(columns)
+    """The matrix of `result` (its `sensors` in road order; `fields` each detection's cells,
+    as `placement.columns_of` gives them), its rows placed by numpy when every (target, sensor)
+    cell holds at most one detection and no cell needs quoting; else `write_rows` writes them
+    (the general, per-cell writer).
+
+    In the first case the cells are formatted in the matrix's order (row by row, sensor by
+    sensor; a detection's cells once each) and the text is one join of them: a row's line
+    break and the next row's head are appended to its last cell."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(
@@ -362,33 +379,48 @@ def matrix_csv(
         + (["confidence"] if result.link_confidence is not None else [])
         + [spreadsheet_safe(f"{sid}_{field}") for sid in sensors for field in fields]
     )
-    members = result.target_members()
-    n_targets, n_sensors, n_fields = len(members), len(sensors), len(fields)
-    column_of = {sid: k for k, sid in enumerate(sensors)}
-    sensor = np.fromiter(map(column_of.__getitem__, d.sensor_id.tolist()), np.int64, len(d))
+    header = out.getvalue()
     assigned = np.flatnonzero(result.groups >= 0)
-    cell = result.groups[assigned] * n_sensors + sensor[assigned]
-    plain = not any(
+    if not assigned.size:
+        return header
+    # Targets are numbered in `target_members` order: the k-th distinct group is row k.
+    row = np.unique(result.groups[assigned], return_inverse=True)[1].reshape(-1)
+    n_targets, n_sensors, n_fields = int(row.max()) + 1, len(sensors), len(fields)
+    cell = row * n_sensors + placement.sensor[assigned]
+    by_cell = np.argsort(cell)
+    cell = cell[by_cell]
+    if bool(np.any(cell[1:] == cell[:-1])):  # a cell of several detections
+        write_rows(writer)
+        return out.getvalue()
+    order = assigned[by_cell]  # the detections in the matrix's order
+    columns = placement.columns_of(order)
+    if any(
         _NEEDS_QUOTES.search("".join(values))
         for field, values in columns.items()
         if field not in _NUMBER_FIELDS  # numbers hold none of those characters
-    )
-    if (cell.size and np.bincount(cell).max() > 1) or not plain:
+    ):
         write_rows(writer)
         return out.getvalue()
-    # Targets are numbered in `target_members` order: the k-th distinct group is row k.
-    row = np.unique(result.groups[assigned], return_inverse=True)[1].reshape(-1)
-    grid = np.full((n_targets, n_sensors * n_fields), "", dtype=object)
-    for f, values in enumerate(columns.values()):
-        grid[row, sensor[assigned] * n_fields + f] = np.array(values, dtype=object)[assigned]
-    heads = [f"\x00T{k + 1}" for k in range(n_targets)]
+    row_width = n_sensors * n_fields
+    if cell.size == n_targets * n_sensors:  # every target at every sensor
+        texts = np.empty(n_targets * row_width, dtype=object)
+        for f, values in enumerate(columns.values()):
+            texts[f::n_fields] = values
+    else:
+        texts = np.full(n_targets * row_width, "", dtype=object)
+        for f, values in enumerate(columns.values()):
+            texts[cell * n_fields + f] = values
+    heads = [f"T{k + 1}" for k in range(n_targets)]
     if result.link_confidence is not None:
-        confidences = result.target_confidences(members)
-        texts = float_texts(np.array(confidences, dtype=float))
-        heads = [f"{h},{c}" for h, c in zip(heads, texts, strict=True)]
-    if n_targets:
-        # All cells in one join, each row led by its head; a row's start, marked by a NUL
-        # (in no cell), then becomes the line break.
-        rows = np.concatenate([np.array(heads, dtype=object)[:, None], grid], axis=1)
-        out.write(",".join(rows.ravel().tolist()).replace(",\x00", "\n")[1:] + "\n")
-    return out.getvalue()
+        if placement.ordered:  # `order` is each target's members, target after target
+            sizes = np.bincount(row[by_cell], minlength=n_targets)
+            confidences = result.link_products(order, sizes)
+        else:
+            confidences = result.target_confidences(result.target_members())
+        texts_of = float_texts(np.array(confidences, dtype=float))
+        heads = [f"{h},{c}" for h, c in zip(heads, texts_of, strict=True)]
+    ends = np.arange(1, n_targets + 1) * row_width - 1
+    breaks = np.array([f"\n{h}" for h in heads[1:]] + ["\n"], dtype=object)
+    texts[ends] = texts[ends] + breaks
+    texts[0] = f"{header}{heads[0]},{texts[0]}"
+    return ",".join(texts.tolist())
