@@ -26,7 +26,9 @@ that measure speed with an error of 3, 6 or 10 %, and no other fault.
 (measured with a `--length-noise` error, 7 % by default) and class, each vehicle class's lengths
 spread over its range (the scenario's `features` option), and scores every associator twice on
 each case: with the features, and on the same detections without them (column `... -f`).
-Export feature cases to a directory of their own: their names are the scenarios'.
+`--lanes-alone` adds a third score, on the same detections reporting their lane alone (column
+`... -l`: single loops know their lane and measure no length). Export feature cases to a
+directory of their own: their names are the scenarios'.
 """
 
 from __future__ import annotations
@@ -273,6 +275,19 @@ def load_case(
     return detections
 
 
+# The column title's suffix for the features a case reports (`--features`, `--lanes-alone`).
+FEATURE_SUFFIX = {"all": "", "none": " -f", "lane": " -l"}
+
+
+def with_reported(detections: Detections, features: str) -> Detections:
+    """The case as detectors reporting `features` would see it: all it has, none, or the lane."""
+    if features == "none":
+        return detections.without_features()
+    if features == "lane":
+        return detections.only_features("lane")
+    return detections
+
+
 def timed_accuracy(
     detections: Detections, associator: str, timeout: float
 ) -> tuple[dict[str, float] | None, float]:
@@ -346,6 +361,11 @@ def main() -> None:
         action="store_true",
         help="Detectors report lane, length and class; score with and without them.",
     )
+    parser.add_argument(
+        "--lanes-alone",
+        action="store_true",
+        help="With --features, also score the cases with their lane alone (column '-l').",
+    )
     parser.add_argument("--length-noise", type=float, default=LENGTH_NOISE)
     parser.add_argument("--data", type=Path, help="Read the cases' CSVs from here (no SUMO).")
     parser.add_argument("--export", type=Path, help="Also write the simulated cases' CSVs here.")
@@ -357,16 +377,18 @@ def main() -> None:
     group = "validation" if args.validation else "speed-noise" if args.speed_noise else "main"
     known = SCENARIO_GROUPS[group]
     args.scenarios = args.scenarios or list(known)
-    # With --features, each associator is scored on the same cases without them too ("-f").
-    columns = [(name, False) for name in args.associators]
+    # With --features, each associator is scored on the same cases without them too ("-f"),
+    # and with --lanes-alone on the cases reporting their lane alone ("-l").
+    reported = ["all"]
     if args.features:
-        # The references ignore features: scoring them twice would say nothing.
-        columns = [
-            (name, stripped)
-            for name in args.associators
-            for stripped in ((False,) if name in REFERENCES else (False, True))
-        ]
-    titles = [name + (" -f" if stripped else "") for name, stripped in columns]
+        reported = ["all", "none", "lane"] if args.lanes_alone else ["all", "none"]
+    # The references ignore features: scoring them twice would say nothing.
+    columns = [
+        (name, features)
+        for name in args.associators
+        for features in (reported[:1] if name in REFERENCES else reported)
+    ]
+    titles = [name + FEATURE_SUFFIX[features] for name, features in columns]
 
     rows: list[dict[str, object]] = []
     sizes: dict[str, list[dict[str, float]]] = {}
@@ -380,18 +402,19 @@ def main() -> None:
         for seed in range(args.seeds):
             detections = load_case(scenario, seed, args.data, args.export, noise)
             sizes.setdefault(scenario, []).append(describe(detections))
-            for (name, stripped), title in zip(columns, titles, strict=True):
-                case = detections.without_features() if stripped else detections
+            for (name, features), title in zip(columns, titles, strict=True):
+                case = with_reported(detections, features)
                 metrics, spent = timed_accuracy(case, name, args.timeout)
                 scores[title].append(metrics)
                 seconds[title].append(spent)
         cells = []
-        for (name, stripped), title in zip(columns, titles, strict=True):
+        for (name, features), title in zip(columns, titles, strict=True):
             rows.append(
                 {
                     "scenario": scenario,
                     "associator": name,
-                    "features": bool(detections.features) and not stripped,
+                    "features": bool(with_reported(detections, features).features),
+                    "reported": list(with_reported(detections, features).features),
                     "metrics": scores[title],
                     "seconds": seconds[title],
                 }

@@ -139,3 +139,13 @@ def test_features_follow_take_concatenate_and_label_removal():
     assert joined.features == ("lane", "length", "vehicle_class")
     assert d.without_labels().vehicle_class.tolist() == ["a", "b", "c", "d"]
     assert d.without_features().features == ()
+
+
+def test_only_the_named_features_can_be_kept():
+    d = make(lane=[0, 1, 2, 3], length=[4.0, 5.0, 6.0, 7.0], vehicle_class=["a", "b", "c", "d"])
+    lanes = d.only_features("lane")
+    assert lanes.features == ("lane",) and lanes.lane.tolist() == [0, 1, 2, 3]
+    assert np.isnan(lanes.length).all() and lanes.target.tolist() == d.target.tolist()
+    assert d.only_features("length", "vehicle_class").features == ("length", "vehicle_class")
+    with pytest.raises(ValueError, match="not a detector feature: speed"):
+        d.only_features("speed")

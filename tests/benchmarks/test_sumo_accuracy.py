@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from benchmarks import sumo_accuracy as bench
+from roadlink.association.detections import Detections
 from roadlink.simulation.sumo import SUMO_SCENARIOS, DetectorFaults, run_sumo, sumo_available
 
 
@@ -48,3 +49,13 @@ def test_with_features_adds_the_features_and_the_length_error_and_keeps_the_othe
     assert featured.features and featured.faults.length_noise == 0.07
     assert featured.faults.model_copy(update={"length_noise": 0.0}) == faulty.faults
     assert featured.sensor_positions == faulty.sensor_positions
+
+
+def test_a_case_is_scored_as_detectors_reporting_all_none_or_the_lane_would_see_it():
+    d = Detections.from_columns(
+        [0.0, 100.0], [20.0, 20.0], [0.0, 5.0], lane=[0, 1], length=[4.0, 4.1]
+    )
+    assert bench.with_reported(d, "all").features == ("lane", "length")
+    assert bench.with_reported(d, "none").features == ()
+    assert bench.with_reported(d, "lane").features == ("lane",)
+    assert set(bench.FEATURE_SUFFIX) == {"all", "none", "lane"}

@@ -200,6 +200,16 @@ class Detections:
         class (to measure what the features are worth)."""
         return Detections(*(getattr(self, name) for name in COLUMNS[:6]))
 
+    def only_features(self, *names: str) -> Detections:
+        """The same detections reporting only the named features (`lane`, `length`,
+        `vehicle_class`): what a simpler detector would report, such as a single loop that
+        knows its lane and measures no length."""
+        unknown = set(names) - set(COLUMNS[6:])
+        if unknown:
+            raise ValueError(f"not a detector feature: {', '.join(sorted(unknown))}")
+        kept = {name: getattr(self, name) for name in (*COLUMNS[:6], *names)}
+        return Detections(**kept)
+
 
 def fill_unreported_features(columns: object, n: int) -> None:
     """Set each feature column that is None on the frozen `columns` to "not reported" for all `n`

@@ -71,9 +71,7 @@ MEASURED_LANES_ALONE = (0.599, 0.434)
 @pytest.mark.slow
 def test_lanes_alone_anchor_a_stop_and_go_queue():
     d = case("sumo-stopgo")
-    lanes = Detections.from_columns(
-        d.position, d.velocity, d.timestamp, d.sensor_id, d.detection_id, d.target, lane=d.lane
-    )
+    lanes = d.only_features("lane")
     assert lanes.features == ("lane",)
     anchored = associate(lanes, "assignment").metrics
     alone = associate(lanes, "assignment", {"lane_anchors": False}).metrics
