@@ -18,7 +18,7 @@ pytestmark = pytest.mark.slow
 
 # SQLAlchemy's default pool: 5 connections and 10 more on demand. Twice that many wait at once.
 WAITERS = 32
-WAIT_SECONDS = 20
+WAIT_SECONDS = 12
 
 
 def test_many_waiting_result_requests_leave_the_api_answering(tmp_path: Path) -> None:
