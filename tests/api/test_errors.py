@@ -15,6 +15,7 @@ import pytest
 from fastapi import FastAPI, Query
 from fastapi.testclient import TestClient
 from pydantic import BaseModel
+from sqlalchemy import create_engine, text
 from sqlalchemy.exc import IntegrityError, OperationalError
 
 from roadlink.api.errors import (
@@ -146,6 +147,31 @@ def test_the_database_unavailable_for_now_is_a_503_to_retry():
     other = problem_for(ValueError("x"))
     assert other.status == 500 and other.headers == {} and other.error_id in other.detail
     assert problem_for(ValueError()).error_id != other.error_id
+
+
+def test_a_connection_pool_busy_for_its_whole_timeout_is_a_503_to_retry(tmp_path: Path):
+    # A real pool of one connection, held elsewhere: the route's checkout times out.
+    engine = create_engine(
+        f"sqlite:///{tmp_path / 'pool.db'}", pool_size=1, max_overflow=0, pool_timeout=0.1
+    )
+    app = FastAPI()
+    install_error_handlers(app)
+    app.add_middleware(ProblemsForEveryError)
+
+    @app.get("/count")
+    def count() -> int:
+        with engine.connect() as connection:
+            return int(connection.execute(text("SELECT 1")).scalar_one())
+
+    client = TestClient(app, raise_server_exceptions=False)
+    assert client.get("/count").json() == 1
+    with engine.connect():
+        response = client.get("/count")
+    body = problem(response, 503)
+    assert "busy" in str(body["detail"])
+    assert response.headers["Retry-After"] == str(RETRY_AFTER_SECONDS)
+    assert client.get("/count").json() == 1  # the connection back, the route answers again
+    engine.dispose()
 
 
 def test_detection_problems_point_into_a_json_body_only():

@@ -18,6 +18,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.exc import DBAPIError, IntegrityError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -309,8 +310,9 @@ class UnexpectedProblem:
 def problem_for(exc: BaseException) -> UnexpectedProblem:
     """The one translation of an unexpected exception, database errors included, into a problem.
 
-    - the database unavailable for now (see `_UNAVAILABLE_MESSAGES`, or a connection error):
-      503 with Retry-After, since a retry will likely succeed;
+    - the database unavailable for now (see `_UNAVAILABLE_MESSAGES`, or a connection error),
+      or every connection of the pool busy for its whole timeout: 503 with Retry-After, since
+      a retry will likely succeed;
     - a constraint the request broke in the database (a concurrent change): 409;
     - anything else: 500. Never the exception's text: it may hold paths, SQL or data.
     """
@@ -321,6 +323,16 @@ def problem_for(exc: BaseException) -> UnexpectedProblem:
             "the request conflicts with a concurrent change in the database; "
             f"retry it (error id {error_id})",
             {},
+            error_id,
+        )
+    if isinstance(exc, PoolTimeout):
+        # Every connection of the pool stayed in use for the pool's whole timeout: a burst of
+        # requests larger than the pool (or slow queries under load), not a fault of this one.
+        return UnexpectedProblem(
+            503,
+            "the server is busy: every database connection stayed in use; "
+            f"retry in a few seconds (error id {error_id})",
+            {"Retry-After": str(RETRY_AFTER_SECONDS)},
             error_id,
         )
     if isinstance(exc, DBAPIError) and (exc.connection_invalidated or _unavailable(exc)):
