@@ -51,7 +51,7 @@ def test_unsupervised_associators_never_see_the_labels():
 
 def test_the_deferred_imports_are_what_the_core_imports_on_first_use():
     """A process that imports them up front (the worker's fork server) runs every associator
-    and scores without importing anything more of scikit-learn."""
+    and scores without importing anything more of scikit-learn or scipy."""
     import subprocess
     import sys
 
@@ -59,15 +59,30 @@ def test_the_deferred_imports_are_what_the_core_imports_on_first_use():
         "import sys\n"
         "from roadlink.association.pipeline import import_deferred\n"
         "import_deferred()\n"
-        "before = {m for m in sys.modules if m.startswith('sklearn')}\n"
+        "before = {m for m in sys.modules if m.startswith(('sklearn', 'scipy'))}\n"
         "from roadlink.association import associate\n"
         "from roadlink.association.associators import ASSOCIATORS\n"
         "from roadlink.simulation import preset, simulate\n"
         "d = simulate(preset('large'), seed=1).detections\n"
         "for name in ASSOCIATORS:\n"
         "    associate(d, name, {})\n"
-        "after = {m for m in sys.modules if m.startswith('sklearn')}\n"
+        "after = {m for m in sys.modules if m.startswith(('sklearn', 'scipy'))}\n"
         "print(sorted({m.split('.')[1] for m in after - before if m.count('.') >= 1}))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
+
+def test_the_cli_imports_neither_scikit_learn_nor_scipy():
+    """Every `roadlink` command imports the CLI; what only some commands need is deferred."""
+    import subprocess
+    import sys
+
+    script = (
+        "import sys\n"
+        "import roadlink.cli\n"
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'sklearn', 'scipy'}))\n"
     )
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr

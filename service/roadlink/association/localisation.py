@@ -22,12 +22,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.interpolate import CubicHermiteSpline
 
 from roadlink.association.detections import Detections, FloatArray
+
+if TYPE_CHECKING:
+    from scipy.interpolate import CubicHermiteSpline
 from roadlink.association.numbers import parse_unsigned
 from roadlink.association.result import AssociationResult
 
@@ -155,6 +157,9 @@ class Trajectory:
     def _spline(self) -> CubicHermiteSpline | None:
         if self._times.size < 2:
             return None
+        # Imported on first use (pipeline.DEFERRED_IMPORTS): every CLI command would pay for it.
+        from scipy.interpolate import CubicHermiteSpline
+
         return CubicHermiteSpline(self._times, self._positions, self._velocities, extrapolate=False)
 
     def covers(self, t: float) -> bool:

@@ -19,6 +19,9 @@ from roadlink.association.detections import Detections
 from roadlink.association.result import AssociationResult, build_result
 
 DEFERRED_IMPORTS = (
+    "scipy.interpolate",
+    "scipy.optimize",
+    "scipy.sparse.csgraph",
     "sklearn.cluster",
     "sklearn.model_selection",
     "sklearn.multiclass",
@@ -26,9 +29,10 @@ DEFERRED_IMPORTS = (
     "sklearn.preprocessing",
     "sklearn.svm",
 )
-"""What the core imports on first use, not with the core (scikit-learn: seconds to import, which
-the CLI need not pay for a command that does not use it): a process that runs many jobs imports
-them up front (`import_deferred`), so that no job's time limit counts them."""
+"""What the core imports on first use, not with the core (scikit-learn: seconds to import;
+scipy's solvers and splines: about 0.4 s; which the CLI need not pay for a command that does not
+use them): a process that runs many jobs imports them up front (`import_deferred`), so that no
+job's time limit counts them."""
 
 
 def import_deferred() -> None:

@@ -10,8 +10,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
 from roadlink.association.detections import CLUTTER, IntArray, ObjectArray
 
@@ -130,6 +128,10 @@ def _best_matching(
     rows = np.concatenate([g, np.arange(n_g)])
     cols = np.concatenate([t, n_t + np.arange(n_g)])
     cost = np.concatenate([top - counts, np.full(n_g, top)]).astype(np.float64)
+    # Imported on first use (pipeline.DEFERRED_IMPORTS): every CLI command would pay for it.
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+
     graph = csr_matrix((cost, (rows, cols)), shape=(n_g, n_t + n_g))
     matched_rows, matched_cols = min_weight_full_bipartite_matching(graph)
     real = matched_cols < n_t

@@ -6,12 +6,13 @@ A generic solver: it knows edges and their costs, nothing of detections or track
 from __future__ import annotations
 
 import itertools
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
-from scipy.sparse import coo_matrix, csr_matrix
-from scipy.sparse.csgraph import connected_components, min_weight_full_bipartite_matching
+
+if TYPE_CHECKING:
+    from scipy.sparse import csr_matrix
 
 Nodes = npt.NDArray[np.int64]
 Costs = npt.NDArray[np.float64]
@@ -61,6 +62,10 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     if n_l + n_r <= DENSE_NODES:
         ml, mr = _match_dense(li, ri, cost, gate / 2.0, n_l, n_r)
         return lu[ml], ru[mr]
+    # Imported on first use (pipeline.DEFERRED_IMPORTS): every CLI command would pay for it.
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     graph = coo_matrix((np.ones(li.size), (li, n_l + ri)), shape=(n_l + n_r, n_l + n_r))
     n_parts, part = connected_components(graph, directed=False)
     edge_part = part[li]
@@ -103,6 +108,8 @@ def _match_dense(
     square[np.arange(n_l), n_r + np.arange(n_l)] = alone
     square[n_l + np.arange(n_r), np.arange(n_r)] = alone
     square[n_l:, n_r:] = 0.0
+    from scipy.optimize import linear_sum_assignment  # on first use, as in `match`
+
     row, col = linear_sum_assignment(square)
     real = (row < n_l) & (col < n_r)
     return row[real], col[real]
@@ -118,6 +125,8 @@ def _match_block(left: Nodes, right: Nodes, cost: Costs, alone: float) -> tuple[
     lu, li = unique_inverse(left)
     ru, ri = unique_inverse(right)
     graph = _augmented(li, ri, cost, alone, lu.size, ru.size)
+    from scipy.sparse.csgraph import min_weight_full_bipartite_matching  # as in `match`
+
     row, col = min_weight_full_bipartite_matching(graph)
     real = (row < lu.size) & (col < ru.size)
     return lu[row[real]], ru[col[real]]
@@ -133,6 +142,8 @@ def _augmented(li: Nodes, ri: Nodes, cost: Costs, alone: float, n_l: int, n_r: i
     own dummy n_r + l at cost `alone`; dummy of right r: r itself at `alone`, then the dummies
     of r's lefts (by left) at 0, so a full matching always exists.
     """
+    from scipy.sparse import csr_matrix  # on first use, as in `match`
+
     # All weights rounded to whole multiples of 2^-10, so that every sum LAPJVsp forms is
     # exact: with arbitrary floats its rounding errors can make it cycle forever (seen on a
     # dense block of SUMO traffic; tests/data/lapjvsp_cycle.npz). The rounding changes costs by
