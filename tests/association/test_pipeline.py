@@ -49,12 +49,19 @@ def test_unsupervised_associators_never_see_the_labels():
     assert labelled.params == unlabelled.params
 
 
-def test_the_deferred_imports_are_what_the_core_imports_on_first_use():
-    """A process that imports them up front (the worker's fork server) runs every associator
-    and scores without importing anything more of scikit-learn or scipy."""
+def printed_by(script: str) -> str:
+    """What a fresh Python process running `script` prints (it must succeed)."""
     import subprocess
     import sys
 
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip()
+
+
+def test_the_deferred_imports_are_what_the_core_imports_on_first_use():
+    """A process that imports them up front (the worker's fork server) runs every associator
+    and scores without importing anything more of scikit-learn or scipy."""
     script = (
         "import sys\n"
         "from roadlink.association.pipeline import import_deferred\n"
@@ -69,21 +76,14 @@ def test_the_deferred_imports_are_what_the_core_imports_on_first_use():
         "after = {m for m in sys.modules if m.startswith(('sklearn', 'scipy'))}\n"
         "print(sorted({m.split('.')[1] for m in after - before if m.count('.') >= 1}))\n"
     )
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "[]"
+    assert printed_by(script) == "[]"
 
 
 def test_the_cli_imports_neither_scikit_learn_nor_scipy():
     """Every `roadlink` command imports the CLI; what only some commands need is deferred."""
-    import subprocess
-    import sys
-
     script = (
         "import sys\n"
         "import roadlink.cli\n"
         "print(sorted({m.split('.')[0] for m in sys.modules} & {'sklearn', 'scipy'}))\n"
     )
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "[]"
+    assert printed_by(script) == "[]"
