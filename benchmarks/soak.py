@@ -37,6 +37,8 @@ import multiprocessing.queues
 import os
 import random
 import re
+import shutil
+import sys
 import tempfile
 import threading
 import time
@@ -337,8 +339,21 @@ def _server_cpu(pid: int) -> dict[str, float]:
 def run_soak(
     clients: int, seconds: float, wait: float, healthz_limit: float = 0.1
 ) -> dict[str, object]:
-    """Start a server, soak it; the figures (see the module's docstring)."""
+    """Start a server, soak it; the figures (see the module's docstring). The server's files
+    (database, log) are removed afterwards, and kept, saying where, when the soak fails."""
     directory = Path(tempfile.mkdtemp(prefix="roadlink-soak-"))
+    try:
+        figures = _soak(directory, clients, seconds, wait, healthz_limit)
+    except BaseException:
+        print(f"the soak failed; its server's files are kept in {directory}", file=sys.stderr)
+        raise
+    shutil.rmtree(directory, ignore_errors=True)
+    return figures
+
+
+def _soak(
+    directory: Path, clients: int, seconds: float, wait: float, healthz_limit: float
+) -> dict[str, object]:
     env = sqlite_env(
         directory,
         ROADLINK_RATE_LIMIT_PER_SECOND="10000",
