@@ -147,9 +147,12 @@ def lane_order_anchors(
         smoothness = learned_smoothness([t[:3] for t in terms])
         for gain, log_travel, kinematic, a, b in terms:
             pairs, margins = chain_margins(gain, log_travel, kinematic, smoothness)
-            for (i, j), m in zip(pairs, margins, strict=True):
-                timed_only = not (measured[a[i]] and measured[b[j]])
-                anchor[b[j]], margin[b[j]] = a[i], m * LANE_ONLY_MARGIN if timed_only else m
+            if not pairs:
+                continue
+            i, j = np.array(pairs).T
+            timed_only = ~(measured[a[i]] & measured[b[j]])
+            anchor[b[j]] = a[i]
+            margin[b[j]] = np.where(timed_only, LANE_ONLY_MARGIN * margins, margins)
     return anchor, margin
 
 
@@ -244,13 +247,18 @@ def _pair_terms(
     speed = 0.5 * (s.speed[a][:, None] + s.speed[b][None, :])
     kinematic = log_travel - np.log(gap / speed)
     gain = _kinematic_gain(s, params, a, b, kinematic)
-    log_length = s.features.log_length
-    measured_a, measured_b = np.isfinite(log_length[a]), np.isfinite(log_length[b])
+    length_a, length_b = s.features.log_length[a], s.features.log_length[b]
+    measured_a, measured_b = np.isfinite(length_a), np.isfinite(length_b)
     if measured_a.any() and measured_b.any():
         # The difference of two readings carries both their errors.
         length_spread = np.sqrt(2.0) * model.features.length_spread
-        known = np.where(np.isfinite(log_length), log_length, 0.0)
-        length = _length_gain(known, a, b, length_spread, model.features, k + 1)
+        length = _length_gain(
+            np.where(measured_a, length_a, 0.0),
+            np.where(measured_b, length_b, 0.0),
+            length_spread,
+            model.features,
+            k + 1,
+        )
         gain += np.where(measured_a[:, None] & measured_b[None, :], length, 0.0)
     return np.where(possible, gain, -np.inf), log_travel, kinematic
 
@@ -273,18 +281,18 @@ def _kinematic_gain(
 
 
 def _length_gain(
-    log_length: FloatArray,
-    a: IntArray,
-    b: IntArray,
+    length_a: FloatArray,
+    length_b: FloatArray,
     spread: float,
     features: FeatureModel,
     sensor_b: int,
 ) -> FloatArray:
-    """The log-likelihood ratio of every pair's two lengths: one vehicle read twice (a normal
-    difference of `spread`), against b any vehicle that b's sensor sees (its length density)."""
-    difference = log_length[b][None, :] - log_length[a][:, None]
+    """The log-likelihood ratio of every pair's two log lengths (rows a, columns b): one
+    vehicle read twice (a normal difference of `spread`), against b any vehicle that b's sensor
+    sees (its length density)."""
+    difference = length_b[None, :] - length_a[:, None]
     same = -0.5 * (difference / spread) ** 2 - np.log(spread * np.sqrt(2.0 * np.pi))
-    density = length_density_at(features, sensor_b, log_length[b])
+    density = length_density_at(features, sensor_b, length_b)
     gain: FloatArray = same - np.log(density)[None, :]
     return gain
 
