@@ -7,13 +7,18 @@ model learned from too few links is not kept."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from types import ModuleType
 from typing import Any
 
 import numpy as np
 import pytest
 
 from roadlink.association import live_assignment
-from roadlink.association.associators.assignment import AssignmentAssociator, AssignmentParams
+from roadlink.association.associators.assignment import (
+    AssignmentAssociator,
+    AssignmentParams,
+    associator,
+)
 from roadlink.association.detections import Detections
 from roadlink.association.live_assignment import Models, associate_window
 from roadlink.association.scores import score_grouping
@@ -43,16 +48,17 @@ def _accuracy(d: Detections, groups: np.ndarray) -> float:
     return metrics.accuracy
 
 
-def _counting(monkeypatch: pytest.MonkeyPatch, name: str) -> list[int]:
-    """Count the calls of the stage `name` as live_assignment calls it."""
+def _counting(monkeypatch: pytest.MonkeyPatch, module: ModuleType, name: str) -> list[int]:
+    """Count the calls of the stage `name` as `module` (the live step's, or the associator's
+    loop that it shares) calls it."""
     calls: list[int] = []
-    stage: Callable[..., Any] = getattr(live_assignment, name)
+    stage: Callable[..., Any] = getattr(module, name)
 
     def counted(*args: Any, **kwargs: Any) -> Any:
         calls.append(1)
         return stage(*args, **kwargs)
 
-    monkeypatch.setattr(live_assignment, name, counted)
+    monkeypatch.setattr(module, name, counted)
     return calls
 
 
@@ -76,8 +82,8 @@ def test_with_the_last_steps_model_a_window_is_linked_once(
     d = _traffic(features)
     params = AssignmentParams()
     _, _, learned = associate_window(_window(d, 0.0, 150.0).without_labels(), params, 150.0, None)
-    priors = _counting(monkeypatch, "segment_prior")
-    passes = _counting(monkeypatch, "build_tracks")
+    priors = _counting(monkeypatch, live_assignment, "segment_prior")
+    passes = _counting(monkeypatch, associator, "build_tracks")
     later = _window(d, 90.0, 260.0).without_labels()
     _, _, following = associate_window(later, params, 260.0, learned)
     assert priors == []  # the prior is the earlier step's
@@ -107,8 +113,8 @@ def test_a_model_is_learned_again_once_it_is_relearn_seconds_of_data_old(
     d = _window(_traffic(), 0.0, 150.0)
     params = AssignmentParams()
     _, _, learned = associate_window(d.without_labels(), params, 150.0, None)
-    priors = _counting(monkeypatch, "segment_prior")
-    passes = _counting(monkeypatch, "build_tracks")
+    priors = _counting(monkeypatch, live_assignment, "segment_prior")
+    passes = _counting(monkeypatch, associator, "build_tracks")
     later = 150.0 + live_assignment.RELEARN_SECONDS
     groups, _, following = associate_window(d.without_labels(), params, later, learned)
     assert len(priors) == 1 and len(passes) == params.em_rounds + 1

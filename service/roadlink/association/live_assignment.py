@@ -5,10 +5,10 @@ Offline, `assignment` learns the road from the detections it is given: the prior
 detections: a third of the associator's time on a live window), then `em_rounds` of linking
 and learning, then the re-pairing sweeps. A live step's window overlaps the previous one in
 most of its detections, and a road's behaviour changes over minutes, not over the seconds
-between steps. So a step runs the whole loop, as `AssignmentAssociator.group` runs it stage by
-stage, only to learn: the model it ends with (and its prior) is kept, and the steps of the next
-`RELEARN_SECONDS` of data link their windows with it in one pass (`em_rounds + 1` offline),
-then re-pair, confirm and judge their links as offline.
+between steps. So a step runs the whole loop (`link_and_learn`, `repair_and_judge`, as
+`AssignmentAssociator.group` runs them) only to learn: the model it ends with (and its prior)
+is kept, and the steps of the next `RELEARN_SECONDS` of data link their windows with it in one
+pass (`em_rounds + 1` offline), then re-pair, confirm and judge their links as offline.
 
 The model is learned again, by the whole loop, at the first step, after `RELEARN_SECONDS` of
 data, after the parameters changed, and when a window's sensors or features differ from those
@@ -29,22 +29,15 @@ from typing import Any
 import numpy as np
 
 from roadlink.association.associators.assignment import AssignmentParams, SegmentModel
-from roadlink.association.associators.assignment.anchors import (
-    Anchors,
-    lane_order_anchors,
-    weigh_anchors,
+from roadlink.association.associators.assignment.associator import (
+    link_and_learn,
+    repair_and_judge,
 )
-from roadlink.association.associators.assignment.confidence import (
-    cut_weak_links,
-    link_confidence,
-)
+from roadlink.association.associators.assignment.confidence import cut_weak_links
 from roadlink.association.associators.assignment.confirmation import confirm_targets
-from roadlink.association.associators.assignment.learning import learn_segments
 from roadlink.association.associators.assignment.params import within_time_scale
 from roadlink.association.associators.assignment.prior import segment_prior
-from roadlink.association.associators.assignment.refine import refine_boundaries
 from roadlink.association.associators.assignment.sensors import Sensors, arrange
-from roadlink.association.associators.assignment.tracks import build_tracks, duplicate_followers
 from roadlink.association.detections import Detections, FloatArray, IntArray
 
 # Data seconds a model is used for before it is learned again: traffic changes over tens of
@@ -109,8 +102,8 @@ def associate_window(
         learned = None
         prior = segment_prior(s, effective.max_skip + 1, effective)
         model, rounds = prior, effective.em_rounds + 1
-    built, model, anchor = _link(s, effective, prior, model, rounds)
-    track, confidence = _repair(s, effective, model, built, anchor)
+    built, model, anchor = link_and_learn(s, effective, prior, model, rounds)
+    track, confidence = repair_and_judge(s, effective, model, built, anchor)
     target = confirm_targets(s, model, effective, track, anchor)
     target, kept = cut_weak_links(s, target, confidence, effective.min_confidence)
     if learned is None and _learned_enough(s, built):
@@ -147,38 +140,3 @@ def _anchored(s: Sensors, params: AssignmentParams) -> bool:
         and s.features is not None
         and s.features.has_lane()
     )
-
-
-def _link(
-    s: Sensors, params: AssignmentParams, prior: SegmentModel, model: SegmentModel, rounds: int
-) -> tuple[IntArray, SegmentModel, Anchors | None]:
-    """`rounds` sequential passes from `model`, learning between them (the associator's loop)."""
-    leader = duplicate_followers(s, params)
-    track = np.zeros(0, dtype=np.int64)
-    anchor = None
-    for r in range(rounds):
-        track = build_tracks(s, model, params, leader, None, 0.0, 0.0, anchor)
-        if r + 1 < rounds:
-            model = learn_segments(s, track, params, prior)
-            if anchor is None and params.lane_anchors and params.feature_weight > 0:
-                anchor = weigh_anchors(s, *lane_order_anchors(s, model, params), track)
-    return track, model, anchor
-
-
-def _repair(
-    s: Sensors,
-    params: AssignmentParams,
-    model: SegmentModel,
-    track: IntArray,
-    anchor: Anchors | None,
-) -> tuple[IntArray, FloatArray]:
-    """The re-pairing sweeps; the last one judges the links it keeps."""
-    confidence = np.full(track.size, np.nan)
-    for sweep in range(params.refine_sweeps):
-        last = sweep + 1 == params.refine_sweeps
-        track = refine_boundaries(
-            s, model, params, track, confidence if last else None, anchor=anchor
-        )
-    if params.refine_sweeps == 0:
-        confidence = link_confidence(s, model, params, track)
-    return track, confidence

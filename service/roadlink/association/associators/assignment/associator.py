@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
 from roadlink.association.associators.assignment.anchors import (
+    Anchors,
     lane_order_anchors,
     weigh_anchors,
 )
@@ -16,16 +18,17 @@ from roadlink.association.associators.assignment.confidence import (
 )
 from roadlink.association.associators.assignment.confirmation import confirm_targets
 from roadlink.association.associators.assignment.learning import learn_segments
+from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import (
     AssignmentParams,
     within_time_scale,
 )
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import refine_boundaries
-from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.associators.assignment.sensors import Sensors, arrange
 from roadlink.association.associators.assignment.tracks import build_tracks, duplicate_followers
 from roadlink.association.associators.base import Associator, Progress
-from roadlink.association.detections import Detections, IntArray
+from roadlink.association.detections import Detections, FloatArray, IntArray
 
 
 class AssignmentAssociator(Associator):
@@ -48,35 +51,73 @@ class AssignmentAssociator(Associator):
         params = within_time_scale(self.params, s.typical_travel_time())
         self.effective_params = params
         prior = segment_prior(s, params.max_skip + 1, params)
-        leader = duplicate_followers(s, params)
         # Every pass (a linking round or a re-pairing sweep) visits each sensor once and costs
         # about the same: progress is the share of passes done.
         rounds = params.em_rounds + 1
-        passes = rounds + params.refine_sweeps
-        model = prior
-        track = np.zeros(0, dtype=np.int64)
-        anchor = None
-        for r in range(rounds):
-            track = build_tracks(
-                s, model, params, leader, progress, r / passes, 1.0 / passes, anchor
-            )
-            if r + 1 < rounds:
-                model = learn_segments(s, track, params, prior)
-                if anchor is None and params.lane_anchors and params.feature_weight > 0:
-                    # Lane order needs the length error, learned from the first tracks; it is
-                    # evidence from lane and length, so feature_weight 0 ignores it too.
-                    anchor = weigh_anchors(s, *lane_order_anchors(s, model, params), track)
-        # The last re-pairing sweep judges the links it keeps (docs/assignment.md, Confidence).
-        confidence = np.full(track.size, np.nan)
-        for sweep in range(params.refine_sweeps):
-            last = sweep + 1 == params.refine_sweeps
-            track = refine_boundaries(
-                s, model, params, track, confidence if last else None, anchor=anchor
-            )
-            if progress:
-                progress((rounds + sweep + 1) / passes)
-        if params.refine_sweeps == 0:
-            confidence = link_confidence(s, model, params, track)
+        passes = Passes(progress, rounds + params.refine_sweeps)
+        track, model, anchor = link_and_learn(s, params, prior, prior, rounds, passes)
+        track, confidence = repair_and_judge(s, params, model, track, anchor, passes, rounds)
         target = confirm_targets(s, model, params, track, anchor)
         target, self.link_confidence = cut_weak_links(s, target, confidence, params.min_confidence)
         return target
+
+
+@dataclass(frozen=True)
+class Passes:
+    """Where progress is reported (None: nowhere), and how many passes the whole run makes."""
+
+    progress: Progress | None = None
+    total: int = 1
+
+
+def link_and_learn(
+    s: Sensors,
+    params: AssignmentParams,
+    prior: SegmentModel,
+    model: SegmentModel,
+    rounds: int,
+    passes: Passes = Passes(),
+) -> tuple[IntArray, SegmentModel, Anchors | None]:
+    """`rounds` sequential passes from `model`, learning the segments between them (towards
+    `prior`), and lane order's anchors from the first tracks: the tracks, the last model, the
+    anchors (None where none were weighed)."""
+    leader = duplicate_followers(s, params)
+    track = np.zeros(0, dtype=np.int64)
+    anchor = None
+    for r in range(rounds):
+        track = build_tracks(
+            s, model, params, leader, passes.progress, r / passes.total, 1.0 / passes.total, anchor
+        )
+        if r + 1 < rounds:
+            model = learn_segments(s, track, params, prior)
+            if anchor is None and params.lane_anchors and params.feature_weight > 0:
+                # Lane order needs the model learned from the first tracks (the length error
+                # among it) and is weighed by them; it is evidence from lane and length, so
+                # feature_weight 0 ignores it too.
+                anchor = weigh_anchors(s, *lane_order_anchors(s, model, params), track)
+    return track, model, anchor
+
+
+def repair_and_judge(
+    s: Sensors,
+    params: AssignmentParams,
+    model: SegmentModel,
+    track: IntArray,
+    anchor: Anchors | None,
+    passes: Passes = Passes(),
+    done: int = 0,
+) -> tuple[IntArray, FloatArray]:
+    """The re-pairing sweeps (after `done` passes of the run), and each link's confidence: the
+    last sweep judges the links it keeps (docs/assignment.md, Confidence), or, with no sweep,
+    `link_confidence` does."""
+    confidence = np.full(track.size, np.nan)
+    for sweep in range(params.refine_sweeps):
+        last = sweep + 1 == params.refine_sweeps
+        track = refine_boundaries(
+            s, model, params, track, confidence if last else None, anchor=anchor
+        )
+        if passes.progress:
+            passes.progress((done + sweep + 1) / passes.total)
+    if params.refine_sweeps == 0:
+        confidence = link_confidence(s, model, params, track)
+    return track, confidence
