@@ -21,6 +21,7 @@ without anchors contradict its anchors (`weigh_anchors`). See docs/assignment.md
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,6 +88,11 @@ class Anchors:
     predecessor: IntArray
     bonus: FloatArray
 
+    def weighed_segments(self, s: Sensors) -> IntArray:
+        """The segments (by the sensor they start at) where some anchor carries a bonus."""
+        weighed = self.predecessor[self.bonus > 0]
+        return np.unique(s.sensor[weighed])
+
 
 def anchor_bonus(pairs: Pairs, anchors: Anchors | None) -> FloatArray:
     """What each candidate link's cost loses for being anchored (nothing if not). An anchor is
@@ -126,34 +132,66 @@ def weigh_anchors(
     return Anchors(predecessor, bonus)
 
 
+@dataclass
+class Chains:
+    """Lanes' chains: each detection's anchored predecessor at the sensor before (-1 = none),
+    by how much its chain beat the best rival there (`chain_margins`, log likelihood), and each
+    segment's learned smoothness (`learned_smoothness`; by the sensor it starts at, NaN where no
+    chain was drawn)."""
+
+    predecessor: IntArray
+    margin: FloatArray
+    smoothness: FloatArray
+
+
 def lane_order_anchors(
-    s: Sensors, model: SegmentModel, params: AssignmentParams
-) -> tuple[IntArray, FloatArray]:
-    """Each detection's anchored predecessor at the sensor before (-1 = none), and by how much
-    its chain beat the best rival there (`chain_margins`, log likelihood); none where detectors
-    do not report lanes. A pair without both lengths is weighed by time alone, its margin
-    discounted to LANE_ONLY_MARGIN."""
-    anchor = np.full(s.time.size, -1, dtype=np.int64)
-    margin = np.zeros(s.time.size)
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    track: IntArray | None = None,
+    drawn: Chains | None = None,
+    segments: Iterable[int] | None = None,
+) -> Chains:
+    """Every lane's chains between neighbouring sensors; none where detectors do not report
+    lanes. A pair without both lengths is weighed by time alone, its margin discounted to
+    LANE_ONLY_MARGIN.
+
+    Without tracks, a pair's lengths are its two readings. With a `track` for every detection,
+    they are the means of the readings along the track up to a and from b on (`track_lengths`):
+    a vehicle read at several sensors is told from its neighbours by far more than one reading
+    can tell (cars' lengths differ by about twice a loop's error). Chains `drawn` before lend
+    their segments' smoothness, and only the `segments` named (the sensors they start at; all by
+    default) are drawn."""
+    n_segments = s.positions.size - 1
+    chains = Chains(
+        np.full(s.time.size, -1, dtype=np.int64),
+        np.zeros(s.time.size),
+        np.full(max(n_segments, 0), np.nan),
+    )
     f = s.features
     if f is None or model.features is None or not f.has_lane():
-        return anchor, margin
+        return chains
     measured = np.isfinite(f.log_length)
-    for k in range(s.positions.size - 1):
+    lengths = track_lengths(s, track)
+    for k in range(n_segments) if segments is None else segments:
         terms = [
-            (*_pair_terms(s, model, params, k, a, b, longest), a, b)
+            (*_pair_terms(s, model, params, k, a, b, longest, lengths), a, b)
             for a, b, longest in _segment_blocks(s, k)
         ]
-        smoothness = learned_smoothness([t[:3] for t in terms])
+        if drawn is not None and np.isfinite(drawn.smoothness[k]):
+            smoothness = float(drawn.smoothness[k])
+        else:
+            smoothness = learned_smoothness([t[:3] for t in terms])
+        chains.smoothness[k] = smoothness
         for gain, log_travel, kinematic, a, b in terms:
             pairs, margins = chain_margins(gain, log_travel, kinematic, smoothness)
             if not pairs:
                 continue
             i, j = np.array(pairs).T
             timed_only = ~(measured[a[i]] & measured[b[j]])
-            anchor[b[j]] = a[i]
-            margin[b[j]] = np.where(timed_only, LANE_ONLY_MARGIN * margins, margins)
-    return anchor, margin
+            chains.predecessor[b[j]] = a[i]
+            chains.margin[b[j]] = np.where(timed_only, LANE_ONLY_MARGIN * margins, margins)
+    return chains
 
 
 def learned_smoothness(terms: list[tuple[FloatArray, FloatArray, FloatArray]]) -> float:
@@ -231,6 +269,7 @@ def _pair_terms(
     a: IntArray,
     b: IntArray,
     longest: float,
+    lengths: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Every pair's gain, its log travel time and its kinematic error (log travel time against
     the gap at the mean speed). The gain is the pair's length likelihood ratio (where both
@@ -247,11 +286,15 @@ def _pair_terms(
     speed = 0.5 * (s.speed[a][:, None] + s.speed[b][None, :])
     kinematic = log_travel - np.log(gap / speed)
     gain = _kinematic_gain(s, params, a, b, kinematic)
-    length_a, length_b = s.features.log_length[a], s.features.log_length[b]
-    measured_a, measured_b = np.isfinite(length_a), np.isfinite(length_b)
+    prefix_mean, prefix_count, suffix_mean, suffix_count = lengths
+    length_a, length_b = prefix_mean[a], suffix_mean[b]
+    measured_a, measured_b = prefix_count[a] > 0, suffix_count[b] > 0
     if measured_a.any() and measured_b.any():
-        # The difference of two readings carries both their errors.
-        length_spread = np.sqrt(2.0) * model.features.length_spread
+        # The difference of two means carries both their errors.
+        length_spread = model.features.length_spread * np.sqrt(
+            1.0 / np.maximum(prefix_count[a], 1.0)[:, None]
+            + 1.0 / np.maximum(suffix_count[b], 1.0)[None, :]
+        )
         length = _length_gain(
             np.where(measured_a, length_a, 0.0),
             np.where(measured_b, length_b, 0.0),
@@ -261,6 +304,40 @@ def _pair_terms(
         )
         gain += np.where(measured_a[:, None] & measured_b[None, :], length, 0.0)
     return np.where(possible, gain, -np.inf), log_travel, kinematic
+
+
+def track_lengths(
+    s: Sensors, track: IntArray | None
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Each detection's mean log length over its track up to and including it, and the number
+    of readings in that mean; then the same from it to the track's end. Without tracks (and for
+    a detection in none), its own reading alone (0 readings where it measured none)."""
+    assert s.features is not None
+    measured = np.isfinite(s.features.log_length)
+    reading = np.where(measured, s.features.log_length, 0.0)
+    count = measured.astype(np.float64)
+    if track is None:
+        return reading, count, reading, count
+    # Along each track in road order, then against it: running sums restarted at every track.
+    forwards = np.lexsort((s.sensor, track))
+    forwards = forwards[track[forwards] >= 0]
+    means = []
+    for order in (forwards, forwards[::-1]):
+        total, readings = reading.copy(), count.copy()
+        total[order] = _running_sums(reading[order], track[order])
+        readings[order] = _running_sums(count[order], track[order])
+        means += [total / np.maximum(readings, 1.0), readings]
+    return means[0], means[1], means[2], means[3]
+
+
+def _running_sums(values: FloatArray, key: IntArray) -> FloatArray:
+    """Cumulative sums of `values`, restarted wherever `key` changes."""
+    total = np.cumsum(values)
+    start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    before = np.r_[0.0, total][start]
+    counts = np.diff(np.r_[start, key.size])
+    result: FloatArray = total - np.repeat(before, counts)
+    return result
 
 
 def _kinematic_gain(
@@ -283,7 +360,7 @@ def _kinematic_gain(
 def _length_gain(
     length_a: FloatArray,
     length_b: FloatArray,
-    spread: float,
+    spread: FloatArray | float,
     features: FeatureModel,
     sensor_b: int,
 ) -> FloatArray:

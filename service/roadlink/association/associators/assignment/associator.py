@@ -82,8 +82,10 @@ def link_and_learn(
     `prior`), and lane order's anchors from the first tracks: the tracks, the last model, the
     anchors (None where none were weighed)."""
     leader = duplicate_followers(s, params)
-    track = np.zeros(0, dtype=np.int64)
-    anchor = None
+    track = first = np.zeros(0, dtype=np.int64)
+    anchor, chains = None, None
+    # Without lengths a chain drawn again would be the same.
+    redraw = s.features is not None and s.features.has_length()
     for r in range(rounds):
         track = build_tracks(
             s, model, params, leader, passes.progress, r / passes.total, 1.0 / passes.total, anchor
@@ -94,7 +96,16 @@ def link_and_learn(
                 # Lane order needs the model learned from the first tracks (the length error
                 # among it) and is weighed by them; it is evidence from lane and length, so
                 # feature_weight 0 ignores it too.
-                anchor = weigh_anchors(s, *lane_order_anchors(s, model, params), track)
+                first, chains = track, lane_order_anchors(s, model, params)
+                anchor = weigh_anchors(s, chains.predecessor, chains.margin, first)
+            elif anchor is not None and chains is not None and redraw:
+                # Where the anchors weigh, the chains are drawn again, once, with each
+                # vehicle's lengths averaged along the tracks that the anchors just helped build,
+                # on either side of the segment (a second time changed little); still weighed
+                # against the first tracks, which no anchor built.
+                segments = anchor.weighed_segments(s)
+                chains = lane_order_anchors(s, model, params, track, chains, segments)
+                anchor, redraw = weigh_anchors(s, chains.predecessor, chains.margin, first), False
     return track, model, anchor
 
 
