@@ -13,7 +13,8 @@ Counting a link's anchor in its track's evidence (`confirmation.py`, session 8) 
 anchored window-cut pairs of the featured stop-and-go case as targets.
 Drawing the lanes' chains again with lengths averaged along the tracks (`anchors.track_lengths`,
 session 9) moved the featured cases whose anchors weigh in (the queue, stop-and-go, and the
-bottleneck, pinned since).
+bottleneck, pinned since), and the chains' heavy-tailed steps where lengths pin them
+(`anchors.step_score`, the same day) all four featured cases but free flow.
 When a change of the METHOD moves a grouping on purpose, print the new digests with
 `python -m tests.association.associators.assignment.test_pinned_groupings` and say why in the
 commit.
@@ -40,11 +41,11 @@ PINNED: dict[tuple[str, tuple[tuple[str, float], ...]], str] = {
     ("sumo/sumo-irregular", ()): "fdf5a26e3eca1905",
     ("sumo/sumo-queue", ()): "5eb806d80a96ec8c",
     ("sumo/sumo-stopgo", ()): "6a13eacd4cb1b103",
-    ("sumo-features/sumo-bottleneck", ()): "56f7ecce7a573aa3",
-    ("sumo-features/sumo-dense-speed6", ()): "6116fe445fa86301",
+    ("sumo-features/sumo-bottleneck", ()): "4f69cbaa0e513348",
+    ("sumo-features/sumo-dense-speed6", ()): "4a80a88cc0d8a09e",
     ("sumo-features/sumo-freeflow", ()): "2dc3133c2c5d6eae",
-    ("sumo-features/sumo-queue", ()): "0e19931f5c823a13",
-    ("sumo-features/sumo-stopgo", ()): "709c1f9fa5035264",
+    ("sumo-features/sumo-queue", ()): "a97b900b503f4e3e",
+    ("sumo-features/sumo-stopgo", ()): "23f41c36209ac14d",
     ("presets/congested-seed0-faults", ()): "5b9ba8e3942a7abf",
     ("presets/large-seed1", ()): "377c5807b2719eac",
     ("presets/small-seed2-faults", ()): "e5e850590ebb7773",
