@@ -25,4 +25,5 @@ SECTIONS: dict[str, SectionRunner] = {
     throughput.NAME: throughput.run,
     overhead.NAME: overhead.run,
     files.NAME: files.run,
+    files.READ_NAME: files.run_read,
 }

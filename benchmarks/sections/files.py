@@ -14,6 +14,10 @@ as a ratio against a reference measured in the same run (issue 19).
   goal at most 10 % each.
 - CLI: `roadlink associate FILE --json` in a subprocess, beside the in-process association of
   the same detections, interleaved; goal at most 1.15, and a peak of at most 1 GiB.
+
+The `csv-read` section (`python -m benchmarks --only csv-read`) runs the CSV-in table alone, on
+the same file with more repeats: a minute or so where `files` takes several (its 10^6-detection
+association), for iterating on the reader.
 """
 
 from __future__ import annotations
@@ -24,7 +28,8 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,6 +61,10 @@ class FilesPlan:
 
 FULL = FilesPlan(detections=1_000_000, repeats=3)
 QUICK = FilesPlan(detections=100_000, repeats=3)
+
+READ_NAME = "csv-read"
+READ_FULL = FilesPlan(detections=1_000_000, repeats=7)
+READ_QUICK = FilesPlan(detections=100_000, repeats=7)
 
 
 def timed(action: Callable[[], object]) -> float:
@@ -155,13 +164,20 @@ finally:
 """
 
 
-def run(quick: bool) -> Section:
-    """The files section (see the module docstring)."""
-    plan = QUICK if quick else FULL
+@contextmanager
+def detection_file(plan: FilesPlan) -> Iterator[Path]:
+    """The plan's detection CSV (the scaling data of `associators`), in a temporary directory."""
     detections = load_detections(cached_dataset(scaled_config(targets_for(plan.detections))))
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "detections.csv"
         path.write_text(write_detections_csv(detections))
+        yield path
+
+
+def run(quick: bool) -> Section:
+    """The files section (see the module docstring)."""
+    plan = QUICK if quick else FULL
+    with detection_file(plan) as path:
         read = _read_table(path, plan)
         write, cli = _write_and_cli_tables(path, plan)
     return Section(
@@ -170,6 +186,20 @@ def run(quick: bool) -> Section:
         "it, writing its result, and the CLI end to end, each beside its reference in the same "
         f"run. Median [min, max] of {plan.repeats} interleaved repeats.",
         tables=[read, write, cli],
+        settings={"detections": plan.detections, "repeats": plan.repeats},
+    )
+
+
+def run_read(quick: bool) -> Section:
+    """The CSV-in table of `files` alone (see the module docstring)."""
+    plan = READ_QUICK if quick else READ_FULL
+    with detection_file(plan) as path:
+        read = _read_table(path, plan)
+    return Section(
+        READ_NAME,
+        f"A {plan.detections:,}-detection CSV (the file of `files`): reading it beside polars. "
+        f"Median [min, max] of {plan.repeats} interleaved repeats.",
+        tables=[read],
         settings={"detections": plan.detections, "repeats": plan.repeats},
     )
 

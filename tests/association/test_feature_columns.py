@@ -14,6 +14,7 @@ from roadlink.association.feature_columns import (
     MAX_LENGTH,
     NO_LANE,
     class_column,
+    json_floats,
     lane_column,
     length_column,
 )
@@ -106,3 +107,34 @@ def test_a_json_batchs_columns_read_as_one_value_at_a_time(lanes, lengths, class
     spaced = [None if c is None else f" {c} " for c in classes]  # stripped one at a time
     assert class_column(4, classes, problems).tolist() == class_column(4, spaced, problems).tolist()
     assert problems == []
+
+
+@pytest.mark.parametrize(
+    "values",
+    [
+        [0.0, None, 2.0, 1.0],
+        [None, None, None, None],
+        [4.5, 1e-3, MAX_LENGTH, float(MAX_LANE)],
+        [0.5, -1.0, 256.0, None],
+        [math.inf, 1.0, -math.inf, None],
+        [1e13, None, -1e300, 3.0],
+    ],
+)
+def test_a_float_array_reads_as_the_same_values_listed(values):
+    # A float array (NaN: not reported), as a JSON batch's number columns reach the core, is
+    # checked whole when every value is within the limit; each value and each problem must be
+    # what the list of the same values (None: not reported) gives, value by value.
+    as_array = np.array([math.nan if v is None else v for v in values])
+    for column in (lane_column, length_column):
+        listed: list[Problem] = []
+        arrayed: list[Problem] = []
+        expected = column(4, values, listed)
+        got = column(4, as_array, arrayed)
+        assert np.array_equal(got, expected, equal_nan=True) and got.dtype == expected.dtype
+        assert arrayed == listed
+
+
+def test_json_floats_are_nan_for_null_and_none_beyond_the_limit():
+    assert np.array_equal(json_floats([1, None, 2.5]), [1.0, math.nan, 2.5], equal_nan=True)
+    assert json_floats([1.0, 1e13]) is None
+    assert json_floats([None, -1e300]) is None

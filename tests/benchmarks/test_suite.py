@@ -152,6 +152,7 @@ def test_every_section_is_registered_under_its_name():
         "throughput",
         "overhead",
         "files",
+        "csv-read",
     ]
 
 

@@ -186,7 +186,8 @@ def shared_texts(column: pl.Series, names: list[str] | None = None) -> Any:
         names = column.unique().drop_nulls().to_list()
     if 2 * len(names) > column.len():
         return column.to_numpy().astype(object, copy=False)
-    codes = column.cast(pl.Enum(names)).to_physical().cast(pl.Int64).fill_null(-1)
+    # The codes in the Enum's own integer type, an empty cell coded past the names (None).
+    codes = column.cast(pl.Enum(names)).to_physical().fill_null(len(names))
     return np.array([*names, None], dtype=object)[codes.to_numpy()]
 
 
@@ -237,8 +238,8 @@ def _features(frame: pl.DataFrame, n: int) -> dict[str, Any] | None:
             features[name] = np.where(reported, values, np.nan)
     if "vehicle_class" in frame.columns:
         classes = frame["vehicle_class"]
-        longest = classes.str.len_chars().max()
-        if longest is not None and int(longest) > MAX_CLASS_CHARS:  # type: ignore[arg-type]
+        names = classes.unique().drop_nulls().to_list()
+        if any(len(name) > MAX_CLASS_CHARS for name in names):
             return None
-        features["vehicle_class"] = shared_texts(classes)
+        features["vehicle_class"] = shared_texts(classes, names)
     return features

@@ -47,17 +47,19 @@ TEXT_COLUMNS = ("sensor_id", "detection_id", "target", "vehicle_class")
 def encode(detections: Detections) -> bytes:
     """The block of `detections` (validated, in upload order)."""
     d = detections
-    features = d.features
+    # The classes' list is made once, for the flag and the text (`d.features` compares the
+    # object array to None element by element: several times as long).
+    classes = d.vehicle_class.tolist()
     flags = (
-        (_LANE if "lane" in features else 0)
-        | (_LENGTH if "length" in features else 0)
-        | (_CLASS if "vehicle_class" in features else 0)
+        (_LANE if bool(d.has_lane.any()) else 0)
+        | (_LENGTH if not bool(np.isnan(d.length).all()) else 0)
+        | (_CLASS if classes.count(None) < len(classes) else 0)
     )
     texts = [
         orjson.dumps(d.sensor_id.tolist()),
         orjson.dumps(d.detection_id.tolist()),
         orjson.dumps(d.target.tolist()),
-        orjson.dumps(d.vehicle_class.tolist()) if flags & _CLASS else b"",
+        orjson.dumps(classes) if flags & _CLASS else b"",
     ]
     parts = [_HEADER.pack(MAGIC, VERSION, flags, len(d), *map(len, texts))]
     parts += [_float_bytes(d.position), _float_bytes(d.velocity), _float_bytes(d.timestamp)]

@@ -202,6 +202,7 @@ BAD_JSON = [
     ("length", -4.2, "> 0 and at most 100"),
     ("length", 100.5, "> 0 and at most 100"),
     ("length", 1e300, "beyond the limit"),
+    ("length", 10**13, "beyond the limit"),
     ("length", "4.5", "must be a JSON number or null"),
     ("vehicle_class", 3, "must be a string"),
     ("vehicle_class", "x" * 33, "at most 32 printable characters"),
