@@ -14,6 +14,7 @@ from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.association.associators.assignment import (
     AssignmentAssociator,
     AssignmentParams,
+    associator,
 )
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.csvio import read_detections_csv
@@ -212,6 +213,28 @@ def test_progress_is_reported_up_to_one():
     seen: list[float] = []
     AssignmentAssociator().group(simulate(preset("small"), seed=0).detections, seen.append)
     assert seen and seen == sorted(seen) and seen[-1] == pytest.approx(1.0)
+
+
+def test_a_round_that_builds_the_last_rounds_tracks_ends_the_learning(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # On a paper-size batch the tracks of the first learned model are final: every later round
+    # would learn that model again, so the loop stops there, with what one round gives.
+    d = simulate(preset("small"), seed=0).detections.without_labels()
+    passes: list[int] = []
+    build_tracks = associator.build_tracks
+
+    def counted(*args: object, **kwargs: object) -> np.ndarray:
+        passes.append(1)
+        return build_tracks(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(associator, "build_tracks", counted)
+    grouper = AssignmentAssociator(em_rounds=3)
+    groups = grouper.group(d)
+    assert len(passes) == 2  # the second round built the first round's tracks again
+    one_round = AssignmentAssociator(em_rounds=1)
+    np.testing.assert_array_equal(groups, one_round.group(d))
+    np.testing.assert_array_equal(grouper.link_confidence, one_round.link_confidence)
 
 
 def queue(n_vehicles: int, speed: object, headway: float, n_sensors: int = 6) -> Detections:

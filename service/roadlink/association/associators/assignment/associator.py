@@ -80,21 +80,34 @@ def link_and_learn(
 ) -> tuple[IntArray, SegmentModel, Anchors | None]:
     """`rounds` sequential passes from `model`, learning the segments between them (towards
     `prior`), and lane order's anchors from the first tracks: the tracks, the last model, the
-    anchors (None where none were weighed)."""
+    anchors (None where none were weighed).
+
+    A round that builds the tracks the round before built, with the same anchors, ends the
+    loop: learning is a function of the tracks, so every later round would learn this round's
+    model again and build these tracks again (on a paper-size batch the first round's tracks
+    are usually final, and the rounds after it were most of the associator's time)."""
     leader = duplicate_followers(s, params)
     track = np.zeros(0, dtype=np.int64)
     anchor = None
+    learned_from = None  # the tracks the current model was learned from, with these anchors
     for r in range(rounds):
         track = build_tracks(
             s, model, params, leader, passes.progress, r / passes.total, 1.0 / passes.total, anchor
         )
+        if learned_from is not None and np.array_equal(track, learned_from):
+            if passes.progress:
+                passes.progress(rounds / passes.total)
+            break
         if r + 1 < rounds:
             model = learn_segments(s, track, params, prior)
+            learned_from = track
             if anchor is None and params.lane_anchors and params.feature_weight > 0:
                 # Lane order needs the model learned from the first tracks (the length error
                 # among it) and is weighed by them; it is evidence from lane and length, so
                 # feature_weight 0 ignores it too.
                 anchor = weigh_anchors(s, *lane_order_anchors(s, model, params), track)
+                if anchor.bonus.any():
+                    learned_from = None  # the next round's costs change with the anchors
     return track, model, anchor
 
 
