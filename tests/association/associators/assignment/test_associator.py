@@ -215,26 +215,31 @@ def test_progress_is_reported_up_to_one():
     assert seen and seen == sorted(seen) and seen[-1] == pytest.approx(1.0)
 
 
-def test_a_round_that_builds_the_last_rounds_tracks_ends_the_learning(
-    monkeypatch: pytest.MonkeyPatch,
+@pytest.mark.parametrize(
+    ("stage", "loop", "calls"),
+    [("build_tracks", "em_rounds", 2), ("refine_boundaries", "refine_sweeps", 1)],
+)
+def test_a_round_or_sweep_that_changes_nothing_ends_its_loop(
+    stage: str, loop: str, calls: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    # On a paper-size batch the tracks of the first learned model are final: every later round
-    # would learn that model again, so the loop stops there, with what one round gives.
+    # On a paper-size batch the tracks of the first learned model are final, and the first
+    # re-pairing sweep changes no link (judging them all as the last sweep would): every later
+    # round or sweep would repeat the work, so each loop stops there, with what one gives.
     d = simulate(preset("small"), seed=0).detections.without_labels()
-    passes: list[int] = []
-    build_tracks = associator.build_tracks
+    seen: list[int] = []
+    run = getattr(associator, stage)
 
-    def counted(*args: object, **kwargs: object) -> np.ndarray:
-        passes.append(1)
-        return build_tracks(*args, **kwargs)  # type: ignore[arg-type]
+    def counted(*args: object, **kwargs: object) -> object:
+        seen.append(1)
+        return run(*args, **kwargs)
 
-    monkeypatch.setattr(associator, "build_tracks", counted)
-    grouper = AssignmentAssociator(em_rounds=3)
+    monkeypatch.setattr(associator, stage, counted)
+    grouper = AssignmentAssociator(**{loop: 3})
     groups = grouper.group(d)
-    assert len(passes) == 2  # the second round built the first round's tracks again
-    one_round = AssignmentAssociator(em_rounds=1)
-    np.testing.assert_array_equal(groups, one_round.group(d))
-    np.testing.assert_array_equal(grouper.link_confidence, one_round.link_confidence)
+    assert len(seen) == calls
+    once = AssignmentAssociator(**{loop: 1})
+    np.testing.assert_array_equal(groups, once.group(d))
+    np.testing.assert_array_equal(grouper.link_confidence, once.link_confidence)
 
 
 def queue(n_vehicles: int, speed: object, headway: float, n_sensors: int = 6) -> Detections:

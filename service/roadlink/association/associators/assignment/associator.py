@@ -122,15 +122,25 @@ def repair_and_judge(
 ) -> tuple[IntArray, FloatArray]:
     """The re-pairing sweeps (after `done` passes of the run), and each link's confidence: the
     last sweep judges the links it keeps (docs/assignment.md, Confidence), or, with no sweep,
-    `link_confidence` does."""
+    `link_confidence` does.
+
+    The sweeps before the last judge tentatively (until they change a link): a sweep that
+    changes none leaves every later sweep the same work, so the loop ends there with its
+    judging (on a paper-size batch the first sweep usually changes nothing)."""
     confidence = np.full(track.size, np.nan)
     for sweep in range(params.refine_sweeps):
         last = sweep + 1 == params.refine_sweeps
-        track = refine_boundaries(
-            s, model, params, track, confidence if last else None, anchor=anchor
+        track, changed = refine_boundaries(
+            s, model, params, track, confidence, anchor=anchor, tentative=not last
         )
         if passes.progress:
-            passes.progress((done + sweep + 1) / passes.total)
+            passes.progress(
+                (done + (sweep + 1 if changed else params.refine_sweeps)) / passes.total
+            )
+        if not changed:
+            break
+        if not last:
+            confidence[:] = np.nan  # judged in part, before the change
     if params.refine_sweeps == 0:
         confidence = link_confidence(s, model, params, track)
     return track, confidence

@@ -34,8 +34,10 @@ def refine_boundaries(
     confidence: FloatArray | None = None,
     relink: bool = True,
     anchor: Anchors | None = None,
-) -> IntArray:
-    """Re-pair the tracks across every sensor boundary, seeing both sides whole.
+    tentative: bool = False,
+) -> tuple[IntArray, bool]:
+    """Re-pair the tracks across every sensor boundary, seeing both sides whole: the tracks,
+    and whether any boundary changed a link.
 
     The sequential pass chooses each link knowing only the past. Here, boundary after boundary,
     every track is cut before sensor k into a prefix and a suffix, and prefixes are matched to
@@ -48,13 +50,17 @@ def refine_boundaries(
     keeps, how sure it is against its rivals at the boundary (`matching.chosen_marginals`, every
     piece free to stay alone at half of `gate_cost`): a link is decided, and judged, for the
     last time at the boundary before its far end. `relink=False` judges the links as they are.
-    Links that lane order `anchor`s cost their bonus less, as in the forward pass.
+    A `tentative` judging stops at the first boundary that changes a link. A sweep depends on
+    the tracks' links alone, so one that changes none leaves the next sweep the same work, and
+    its judging is the next sweep's. Links that lane order `anchor`s cost their bonus less, as
+    in the forward pass.
     """
     nxt, prv = successors(s, track)
     in_track = track >= 0
     n_sensors = s.positions.size
     levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
     gate = REFINE_GATE_FACTOR * params.gate_cost
+    changed = False
     for k in range(1, n_sensors + 1):
         # Detections at sensor k - 1 got their final predecessor at the previous boundary.
         m = s.members(k - 1)
@@ -74,15 +80,17 @@ def refine_boundaries(
             # pass built is evidence in itself, so re-pairing must pay for itself.
             linked_a, linked_b = match(pairs.a, pairs.b, cost, gate)
             crossing = tails[nxt[tails] >= 0]
+            was = nxt[tails]
             prv[nxt[crossing]] = -1
             nxt[crossing] = -1
             nxt[linked_a] = linked_b
             prv[linked_b] = linked_a
-        if confidence is not None:
+            changed = changed or not np.array_equal(nxt[tails], was)
+        if confidence is not None and not (tentative and changed):
             chosen = nxt[pairs.a] == pairs.b
             marginal = chosen_marginals(pairs.a, pairs.b, cost, chosen, params.gate_cost)
             confidence[pairs.b[chosen]] = marginal[chosen]
-    return tracks_from_links(s, prv, in_track)
+    return tracks_from_links(s, prv, in_track), changed
 
 
 @dataclass
