@@ -8,7 +8,7 @@ import numpy as np
 
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
-from roadlink.association.associators.assignment.gating import Pairs, gated_pairs
+from roadlink.association.associators.assignment.gating import Gate, Pairs
 from roadlink.association.associators.assignment.matching import chosen_marginals, match
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import incoming_pace, outgoing_pace
@@ -59,7 +59,7 @@ def refine_boundaries(
     in_track = track >= 0
     n_sensors = s.positions.size
     levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
-    gate = REFINE_GATE_FACTOR * params.gate_cost
+    gate = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
     changed = False
     for k in range(1, n_sensors + 1):
         # Detections at sensor k - 1 got their final predecessor at the previous boundary.
@@ -69,7 +69,7 @@ def refine_boundaries(
             level.extend_heads(m, prv[m])
         if k == n_sensors:
             break
-        ends = ends_at_boundary(s, model, params, nxt, prv, in_track, k, gate)
+        ends = ends_at_boundary(s, params, nxt, prv, in_track, k, gate)
         if ends is None:
             continue
         tails, pairs = ends
@@ -78,7 +78,7 @@ def refine_boundaries(
         if relink:
             # Splitting a track costs more here than declining a link did: a track the forward
             # pass built is evidence in itself, so re-pairing must pay for itself.
-            linked_a, linked_b = match(pairs.a, pairs.b, cost, gate)
+            linked_a, linked_b = match(pairs.a, pairs.b, cost, gate.gate)
             crossing = tails[nxt[tails] >= 0]
             was = nxt[tails]
             prv[nxt[crossing]] = -1
@@ -165,17 +165,16 @@ def suffix_sums(
 
 def ends_at_boundary(
     s: Sensors,
-    model: SegmentModel,
     params: AssignmentParams,
     nxt: IntArray,
     prv: IntArray,
     in_track: BoolArray,
     k: int,
-    gate: float,
+    gate: Gate,
 ) -> tuple[IntArray, Pairs] | None:
     """The prefixes' last detections before sensor k and the candidate links from them to the
-    suffixes' first detections from sensor k on, those costing less than `gate` on the travel
-    time alone (None when either side has none)."""
+    suffixes' first detections from sensor k on, those within the `gate` on the travel time
+    alone (None when either side has none)."""
     reach = params.max_skip + 1
     n_sensors = s.positions.size
     before = np.concatenate([s.members(q) for q in range(max(0, k - reach), k)])
@@ -191,5 +190,5 @@ def ends_at_boundary(
     found: list[Pairs] = []
     for q in range(k, min(k + reach, n_sensors)):
         near = tails[s.sensor[tails] >= q - reach]
-        found.append(gated_pairs(s, model, params, near, q, gate, among=is_head))
+        found.append(gate.pairs(near, q, among=is_head))
     return tails, Pairs.concatenate(found)
