@@ -14,6 +14,7 @@ from roadlink.association.associators import DEFAULT_ASSOCIATOR
 from roadlink.association.associators.assignment import (
     AssignmentAssociator,
     AssignmentParams,
+    associator,
 )
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.csvio import read_detections_csv
@@ -212,6 +213,33 @@ def test_progress_is_reported_up_to_one():
     seen: list[float] = []
     AssignmentAssociator().group(simulate(preset("small"), seed=0).detections, seen.append)
     assert seen and seen == sorted(seen) and seen[-1] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(
+    ("stage", "loop", "calls"),
+    [("build_tracks", "em_rounds", 2), ("refine_boundaries", "refine_sweeps", 1)],
+)
+def test_a_round_or_sweep_that_changes_nothing_ends_its_loop(
+    stage: str, loop: str, calls: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # On a paper-size batch the tracks of the first learned model are final, and the first
+    # re-pairing sweep changes no link (judging them all as the last sweep would): every later
+    # round or sweep would repeat the work, so each loop stops there, with what one gives.
+    d = simulate(preset("small"), seed=0).detections.without_labels()
+    seen: list[int] = []
+    run = getattr(associator, stage)
+
+    def counted(*args: object, **kwargs: object) -> object:
+        seen.append(1)
+        return run(*args, **kwargs)
+
+    monkeypatch.setattr(associator, stage, counted)
+    grouper = AssignmentAssociator(**{loop: 3})
+    groups = grouper.group(d)
+    assert len(seen) == calls
+    once = AssignmentAssociator(**{loop: 1})
+    np.testing.assert_array_equal(groups, once.group(d))
+    np.testing.assert_array_equal(grouper.link_confidence, once.link_confidence)
 
 
 def queue(n_vehicles: int, speed: object, headway: float, n_sensors: int = 6) -> Detections:

@@ -7,7 +7,12 @@ import numpy as np
 import pytest
 
 from roadlink.association.associators.assignment import AssignmentParams, Tails
-from roadlink.association.associators.assignment.gating import Pairs, gated_pairs, time_residual
+from roadlink.association.associators.assignment.gating import (
+    EverySensor,
+    Pairs,
+    gated_pairs,
+    time_residual,
+)
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.detections import Detections
 from tests.association.associators.assignment.roads import kinematic_model
@@ -110,15 +115,19 @@ def test_pairs_are_taken_and_concatenated_field_by_field():
     assert Pairs.none().a.size == Pairs.none().r_time.size == 0
 
 
-def test_gating_among_some_arrivals_is_gating_all_then_keeping_those():
-    rng = np.random.default_rng(3)
-    n = 400
-    d = Detections.from_columns(
+def three_sensors(rng: np.random.Generator, n: int) -> Detections:
+    """n reports at each of three sensors, at random speeds and times."""
+    return Detections.from_columns(
         position=np.repeat([0.0, 100.0, 250.0], n),
         velocity=rng.uniform(15.0, 35.0, 3 * n),
         timestamp=np.concatenate([rng.uniform(0.0, 200.0, n) + 8.0 * k for k in range(3)]),
     )
-    s = arrange(d, PARAMS)
+
+
+def test_gating_among_some_arrivals_is_gating_all_then_keeping_those():
+    rng = np.random.default_rng(3)
+    n = 400
+    s = arrange(three_sensors(rng, n), PARAMS)
     model = kinematic_model(3, PARAMS, tails=Tails(0.05, 4.0))
     among = rng.random(3 * n) < 0.3
     for q, a in ((1, s.members(0)), (2, np.concatenate([s.members(1), s.members(0)]))):
@@ -130,3 +139,19 @@ def test_gating_among_some_arrivals_is_gating_all_then_keeping_those():
             assert np.array_equal(getattr(some, name), getattr(expected, name))
     none = np.zeros(3 * n, dtype=bool)
     assert gated_pairs(s, model, PARAMS, s.members(0), 1, PARAMS.gate_cost, among=none).a.size == 0
+
+
+@pytest.mark.parametrize("among", [False, True])
+def test_every_sensors_links_gated_at_once_are_those_gated_sensor_by_sensor(among: bool):
+    # To the last bit, in the same order, whatever the departures' order.
+    rng = np.random.default_rng(5)
+    s = arrange(three_sensors(rng, 60), PARAMS)
+    model = kinematic_model(3, PARAMS, tails=Tails(0.05, 4.0))
+    arrivals = rng.random(180) < 0.5 if among else None
+    every = EverySensor.gate(s, model, PARAMS, 2.0 * PARAMS.gate_cost)
+    for q, a in ((1, s.members(0)), (2, rng.permutation(np.r_[s.members(1), s.members(0)]))):
+        one = gated_pairs(s, model, PARAMS, a, q, 2.0 * PARAMS.gate_cost, among=arrivals)
+        at_once = every.into(q, a, arrivals)
+        assert one.a.size > 0
+        for name in ("a", "b", "r_time", "ratio", "speed_spread", "span"):
+            assert np.array_equal(getattr(at_once, name), getattr(one, name))

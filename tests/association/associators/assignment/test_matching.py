@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from roadlink.association.associators.assignment.matching import match
+from roadlink.association.associators.assignment.matching import _match_dense, match
 
 
 def test_match_takes_an_edge_only_when_it_beats_leaving_both_alone():
@@ -20,6 +20,16 @@ def test_match_takes_an_edge_only_when_it_beats_leaving_both_alone():
     a, b = match(left, right, np.array([1.0, 3.0, 1.5]), gate=4.0)
     # Now 0-11 + 1-10 (4.5) beats 0-10 alone (1 + leaving 1 and 11 alone at 4).
     assert dict(zip(a.tolist(), b.tolist(), strict=True)) == {0: 11, 1: 10}
+
+
+def test_edges_that_share_no_node_are_all_taken_as_the_dense_assignment_takes_them():
+    left = np.array([7, 3, 5])
+    right = np.array([20, 22, 21])
+    cost = np.array([3.9, -1.0, 0.5])
+    a, b = match(left, right, cost, gate=4.0)
+    ml, mr = _match_dense(np.array([2, 0, 1]), np.array([0, 2, 1]), cost, 2.0, 3, 3)
+    assert a.tolist() == [3, 5, 7] == np.array([3, 5, 7])[ml].tolist()
+    assert b.tolist() == [22, 21, 20] == np.array([20, 21, 22])[mr].tolist()
 
 
 def test_sparse_matching_terminates_on_a_block_that_made_lapjvsp_cycle():

@@ -20,11 +20,17 @@ ROAD = [0.0, 100.0, 200.0, 300.0, 400.0]
 TRUTH = np.array([0, 1] * 5)
 
 
-def refined(track: np.ndarray, **kwargs: object) -> list[int]:
+def sweep(track: np.ndarray, **kwargs: object) -> tuple[list[int], bool]:
+    """The tracks after one sweep over the test road, and whether it changed a link."""
     d = steady_vehicles([0.0, 1.5], [20.0, 30.0], ROAD)
     s = arrange(d, PARAMS)
     model = kinematic_model(len(ROAD), PARAMS)
-    return refine_boundaries(s, model, PARAMS, track.copy(), **kwargs).tolist()  # type: ignore[arg-type]
+    after, changed = refine_boundaries(s, model, PARAMS, track.copy(), **kwargs)  # type: ignore[arg-type]
+    return after.tolist(), changed
+
+
+def refined(track: np.ndarray, **kwargs: object) -> list[int]:
+    return sweep(track, **kwargs)[0]
 
 
 def test_right_tracks_are_kept_as_they_are():
@@ -57,6 +63,19 @@ def test_the_links_kept_are_judged_and_without_relinking_the_wrong_one_is_judged
     # is too far off in time to be a candidate at all, so it is not judged.
     assert judged[6] < 1e-3 and np.isnan(judged[7])
     assert judged[2:6] == pytest.approx(np.ones(4), abs=1e-3)
+
+
+def test_a_tentative_judging_stops_at_the_first_change_and_a_sweep_says_whether_it_changed():
+    # A sweep that changes no link judges every link (the next sweep would do the same work);
+    # one that changes a link stops judging there.
+    kept = np.full(TRUTH.size, np.nan)
+    assert sweep(TRUTH, confidence=kept, tentative=True) == (TRUTH.tolist(), False)
+    assert kept[2:] == pytest.approx(np.ones(8), abs=1e-3)
+    swapped = TRUTH.copy()
+    swapped[6:] = 1 - swapped[6:]
+    judged = np.full(TRUTH.size, np.nan)
+    assert sweep(swapped, confidence=judged, tentative=True) == (TRUTH.tolist(), True)
+    assert np.isnan(judged[6:]).all()  # the swap is undone at the boundary before 300 m
 
 
 def test_suffix_sums_run_from_each_detection_to_its_tracks_end():

@@ -80,18 +80,29 @@ def link_and_learn(
 ) -> tuple[IntArray, SegmentModel, Anchors | None]:
     """`rounds` sequential passes from `model`, learning the segments between them (towards
     `prior`), and lane order's anchors from the first tracks: the tracks, the last model, the
-    anchors (None where none were weighed)."""
+    anchors (None where none were weighed).
+
+    A round that builds the tracks the round before built, with the same anchors, ends the
+    loop: learning is a function of the tracks, so every later round would learn this round's
+    model again and build these tracks again (on a paper-size batch the first round's tracks
+    are usually final, and the rounds after it were most of the associator's time)."""
     leader = duplicate_followers(s, params)
     track = first = np.zeros(0, dtype=np.int64)
     anchor, chains = None, None
     # Without lengths a chain drawn again would be the same.
     redraw = s.features is not None and s.features.has_length()
+    learned_from = None  # the tracks the current model was learned from, with these anchors
     for r in range(rounds):
         track = build_tracks(
             s, model, params, leader, passes.progress, r / passes.total, 1.0 / passes.total, anchor
         )
+        if learned_from is not None and np.array_equal(track, learned_from):
+            if passes.progress:
+                passes.progress(rounds / passes.total)
+            break
         if r + 1 < rounds:
             model = learn_segments(s, track, params, prior)
+            learned_from = track
             if anchor is None and params.lane_anchors and params.feature_weight > 0:
                 # Lane order needs the model learned from the first tracks (the length error
                 # among it) and is weighed by them; it is evidence from lane and length, so
@@ -106,6 +117,10 @@ def link_and_learn(
                 segments = anchor.weighed_segments(s)
                 chains = lane_order_anchors(s, model, params, track, chains, segments)
                 anchor, redraw = weigh_anchors(s, chains.predecessor, chains.margin, first), False
+            else:
+                continue
+            if anchor.bonus.any():
+                learned_from = None  # the next round's costs change with the anchors
     return track, model, anchor
 
 
@@ -120,15 +135,25 @@ def repair_and_judge(
 ) -> tuple[IntArray, FloatArray]:
     """The re-pairing sweeps (after `done` passes of the run), and each link's confidence: the
     last sweep judges the links it keeps (docs/assignment.md, Confidence), or, with no sweep,
-    `link_confidence` does."""
+    `link_confidence` does.
+
+    The sweeps before the last judge tentatively (until they change a link): a sweep that
+    changes none leaves every later sweep the same work, so the loop ends there with its
+    judging (on a paper-size batch the first sweep usually changes nothing)."""
     confidence = np.full(track.size, np.nan)
     for sweep in range(params.refine_sweeps):
         last = sweep + 1 == params.refine_sweeps
-        track = refine_boundaries(
-            s, model, params, track, confidence if last else None, anchor=anchor
+        track, changed = refine_boundaries(
+            s, model, params, track, confidence, anchor=anchor, tentative=not last
         )
         if passes.progress:
-            passes.progress((done + sweep + 1) / passes.total)
+            passes.progress(
+                (done + (sweep + 1 if changed else params.refine_sweeps)) / passes.total
+            )
+        if not changed:
+            break
+        if not last:
+            confidence[:] = np.nan  # judged in part, before the change
     if params.refine_sweeps == 0:
         confidence = link_confidence(s, model, params, track)
     return track, confidence

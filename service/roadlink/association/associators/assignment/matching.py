@@ -60,6 +60,11 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     ru, ri = unique_inverse(right)
     n_l, n_r = lu.size, ru.size
     if n_l + n_r <= DENSE_NODES:
+        if n_l == left.size and n_r == right.size:
+            # No two edges share a node, and each beats leaving its ends alone: all are taken
+            # (by left, as the dense assignment returns them).
+            by_left = np.argsort(li)
+            return left[by_left], right[by_left]
         ml, mr = _match_dense(li, ri, cost, gate / 2.0, n_l, n_r)
         return lu[ml], ru[mr]
     # Imported on first use (pipeline.DEFERRED_IMPORTS): every CLI command would pay for it.

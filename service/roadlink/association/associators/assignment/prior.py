@@ -37,6 +37,10 @@ BoolArray = npt.NDArray[np.bool_]
 
 PRIOR_BINS = np.arange(-PRIOR_LOG_RANGE, PRIOR_LOG_RANGE + PRIOR_BIN, PRIOR_BIN)
 PRIOR_ZERO_BIN = int(np.searchsorted(PRIOR_BINS, 0.0) - 1)
+# Each bin's share of a uniform background (`excess_over_uniform`), and the smoothing's weights
+# of a count's variance: constants, worked out once.
+PRIOR_BIN_GROWTH = np.diff(np.exp(PRIOR_BINS))
+PRIOR_SMOOTHING_SQUARED = np.square(PRIOR_SMOOTHING)
 
 
 def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> SegmentModel:
@@ -193,7 +197,7 @@ class CandidatePairs:
         # for `excess` alone).
         ahead = self.s.time[self.pb] > self.s.time[self.pa]
         thinning = float(keep[ahead].mean()) if ahead.any() else 0.0
-        background = thinning * self.rate * float(typical.sum()) * np.diff(np.exp(PRIOR_BINS))
+        background = thinning * self.rate * float(typical.sum()) * PRIOR_BIN_GROWTH
         return BiasHistogram.of(values, background)
 
     def excess(
@@ -248,7 +252,7 @@ class BiasHistogram:
         return cls(
             values,
             np.convolve(histogram - background, PRIOR_SMOOTHING, mode="same"),
-            np.convolve(histogram, np.square(PRIOR_SMOOTHING), mode="same") + PRIOR_PSEUDO_COUNT,
+            np.convolve(histogram, PRIOR_SMOOTHING_SQUARED, mode="same") + PRIOR_PSEUDO_COUNT,
         )
 
     def significance(self) -> float:

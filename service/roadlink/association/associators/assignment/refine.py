@@ -8,7 +8,7 @@ import numpy as np
 
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
-from roadlink.association.associators.assignment.gating import Pairs, gated_pairs
+from roadlink.association.associators.assignment.gating import Gate, Pairs
 from roadlink.association.associators.assignment.matching import chosen_marginals, match
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import incoming_pace, outgoing_pace
@@ -34,8 +34,10 @@ def refine_boundaries(
     confidence: FloatArray | None = None,
     relink: bool = True,
     anchor: Anchors | None = None,
-) -> IntArray:
-    """Re-pair the tracks across every sensor boundary, seeing both sides whole.
+    tentative: bool = False,
+) -> tuple[IntArray, bool]:
+    """Re-pair the tracks across every sensor boundary, seeing both sides whole: the tracks,
+    and whether any boundary changed a link.
 
     The sequential pass chooses each link knowing only the past. Here, boundary after boundary,
     every track is cut before sensor k into a prefix and a suffix, and prefixes are matched to
@@ -48,13 +50,17 @@ def refine_boundaries(
     keeps, how sure it is against its rivals at the boundary (`matching.chosen_marginals`, every
     piece free to stay alone at half of `gate_cost`): a link is decided, and judged, for the
     last time at the boundary before its far end. `relink=False` judges the links as they are.
-    Links that lane order `anchor`s cost their bonus less, as in the forward pass.
+    A `tentative` judging stops at the first boundary that changes a link. A sweep depends on
+    the tracks' links alone, so one that changes none leaves the next sweep the same work, and
+    its judging is the next sweep's. Links that lane order `anchor`s cost their bonus less, as
+    in the forward pass.
     """
     nxt, prv = successors(s, track)
     in_track = track >= 0
     n_sensors = s.positions.size
     levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
-    gate = REFINE_GATE_FACTOR * params.gate_cost
+    gate = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
+    changed = False
     for k in range(1, n_sensors + 1):
         # Detections at sensor k - 1 got their final predecessor at the previous boundary.
         m = s.members(k - 1)
@@ -63,7 +69,7 @@ def refine_boundaries(
             level.extend_heads(m, prv[m])
         if k == n_sensors:
             break
-        ends = ends_at_boundary(s, model, params, nxt, prv, in_track, k, gate)
+        ends = ends_at_boundary(s, params, nxt, prv, in_track, k, gate)
         if ends is None:
             continue
         tails, pairs = ends
@@ -72,17 +78,19 @@ def refine_boundaries(
         if relink:
             # Splitting a track costs more here than declining a link did: a track the forward
             # pass built is evidence in itself, so re-pairing must pay for itself.
-            linked_a, linked_b = match(pairs.a, pairs.b, cost, gate)
+            linked_a, linked_b = match(pairs.a, pairs.b, cost, gate.gate)
             crossing = tails[nxt[tails] >= 0]
+            was = nxt[tails]
             prv[nxt[crossing]] = -1
             nxt[crossing] = -1
             nxt[linked_a] = linked_b
             prv[linked_b] = linked_a
-        if confidence is not None:
+            changed = changed or not np.array_equal(nxt[tails], was)
+        if confidence is not None and not (tentative and changed):
             chosen = nxt[pairs.a] == pairs.b
             marginal = chosen_marginals(pairs.a, pairs.b, cost, chosen, params.gate_cost)
             confidence[pairs.b[chosen]] = marginal[chosen]
-    return tracks_from_links(s, prv, in_track)
+    return tracks_from_links(s, prv, in_track), changed
 
 
 @dataclass
@@ -157,17 +165,16 @@ def suffix_sums(
 
 def ends_at_boundary(
     s: Sensors,
-    model: SegmentModel,
     params: AssignmentParams,
     nxt: IntArray,
     prv: IntArray,
     in_track: BoolArray,
     k: int,
-    gate: float,
+    gate: Gate,
 ) -> tuple[IntArray, Pairs] | None:
     """The prefixes' last detections before sensor k and the candidate links from them to the
-    suffixes' first detections from sensor k on, those costing less than `gate` on the travel
-    time alone (None when either side has none)."""
+    suffixes' first detections from sensor k on, those within the `gate` on the travel time
+    alone (None when either side has none)."""
     reach = params.max_skip + 1
     n_sensors = s.positions.size
     before = np.concatenate([s.members(q) for q in range(max(0, k - reach), k)])
@@ -183,5 +190,5 @@ def ends_at_boundary(
     found: list[Pairs] = []
     for q in range(k, min(k + reach, n_sensors)):
         near = tails[s.sensor[tails] >= q - reach]
-        found.append(gated_pairs(s, model, params, near, q, gate, among=is_head))
+        found.append(gate.pairs(near, q, among=is_head))
     return tails, Pairs.concatenate(found)

@@ -10,7 +10,7 @@ import numpy.typing as npt
 
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
-from roadlink.association.associators.assignment.gating import gated_pairs
+from roadlink.association.associators.assignment.gating import Gate
 from roadlink.association.associators.assignment.matching import match
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import Neighbour, PaceModel
@@ -135,10 +135,11 @@ def build_tracks(
     track = np.full(s.time.size, -1, dtype=np.int64)
     level = TrackLevel.start(s, model.pace)
     tail = np.zeros(0, dtype=np.int64)  # last detection of every track, by track index
+    gate = Gate.of(s, model, params, params.gate_cost)
     for q in range(n_sensors):
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
-            linked_b = _extend_tracks(s, model, params, q, track, tail, level, anchor)
+            linked_b = _extend_tracks(s, model, params, gate, q, track, tail, level, anchor)
         born = _births(s.members(q), linked_b, track, leader)
         track[born] = tail.size + np.arange(born.size)
         tail = np.concatenate([tail, born])
@@ -151,6 +152,7 @@ def _extend_tracks(
     s: Sensors,
     model: SegmentModel,
     params: AssignmentParams,
+    gate: Gate,
     q: int,
     track: IntArray,
     tail: IntArray,
@@ -160,7 +162,7 @@ def _extend_tracks(
     """Link the open tracks (those whose last detection lies within `max_skip` missed sensors)
     to sensor q's detections, one to one at least cost; the detections linked."""
     open_tails = tail[s.sensor[tail] >= q - 1 - params.max_skip]
-    pairs = gated_pairs(s, model, params, open_tails, q, params.gate_cost)
+    pairs = gate.pairs(open_tails, q)
     if not pairs.a.size:
         return np.zeros(0, dtype=np.int64)
     a, b = pairs.a, pairs.b
