@@ -422,7 +422,12 @@ def chain_margins(
     if not pairs:
         return pairs, np.zeros(0)
     backwards = _chain_scores(
-        gain[::-1, ::-1], log_travel[::-1, ::-1], kinematic[::-1, ::-1], smoothness, tail
+        gain[::-1, ::-1],
+        log_travel[::-1, ::-1],
+        kinematic[::-1, ::-1],
+        smoothness,
+        tail,
+        trace=False,
     )[0][::-1, ::-1]
     with np.errstate(invalid="ignore"):  # -inf - -inf where a pair is impossible
         through = np.where(np.isfinite(gain), forwards + backwards - gain, -np.inf)
@@ -440,9 +445,11 @@ def _chain_scores(
     kinematic: FloatArray,
     smoothness: float,
     tail: float = STEP_TAIL,
+    trace: bool = True,
 ) -> tuple[FloatArray, IntArray]:
     """The best score of a chain ending at each pair (`smooth_chain`), and each pair's pair
-    before in that chain (-1, -1 where it starts one). Row by row, over the columns between the
+    before in that chain (-1, -1 where it starts one; all -1 without `trace`, which only the
+    scores are asked of). Row by row, over the columns between the
     row's first and last possible pair; within a row, every pair before it (up to BAND rows and
     columns back) is weighed at once, nearest column shift first and then nearest row, of which
     the first best is kept."""
@@ -464,10 +471,12 @@ def _chain_scores(
         if possible.size:
             columns = np.arange(possible[0], possible[-1] + 1)
             row = np.zeros(columns.size)  # a chain may start at any pair
-            origin = np.full((columns.size, 2), -1, dtype=np.int64)
             jump = best_before[columns] - JUMP
             better = jump > row
-            row[better], origin[better] = jump[better], where_before[columns][better]
+            row[better] = jump[better]
+            if trace:
+                origin = np.full((columns.size, 2), -1, dtype=np.int64)
+                origin[better] = where_before[columns][better]
             if i:
                 rows = np.arange(i - 1, max(i - BAND, 0) - 1, -1)  # nearest first
                 shifted = BAND - shifts[:, None] + columns[None, :]  # (shifts, columns)
@@ -484,12 +493,18 @@ def _chain_scores(
                 best = candidates[first_best, np.arange(columns.size)]
                 improved = np.flatnonzero(best > row)
                 row[improved] = best[improved]
-                origin[improved, 0] = rows[first_best[improved] % rows.size]
-                origin[improved, 1] = columns[improved] - shifts[first_best[improved] // rows.size]
+                if trace:
+                    origin[improved, 0] = rows[first_best[improved] % rows.size]
+                    chosen = shifts[first_best[improved] // rows.size]
+                    origin[improved, 1] = columns[improved] - chosen
             score[i, columns] = row + gain[i, columns]
-            back[i, columns] = origin
+            if trace:
+                back[i, columns] = origin
         padded_score[i, BAND:] = score[i]
-        best_before, where_before = _best_so_far(score[i], i, best_before, where_before)
+        if trace:
+            best_before, where_before = _best_so_far(score[i], i, best_before, where_before)
+        else:
+            best_before = _best_scores_so_far(score[i], best_before)
     return score, back
 
 
@@ -521,6 +536,14 @@ def _best_path(score: FloatArray, back: IntArray) -> list[tuple[int, int]]:
         pairs.append((i, j))
         i, j = (int(x) for x in back[i, j])
     return pairs[::-1]
+
+
+def _best_scores_so_far(row_score: FloatArray, before: FloatArray) -> FloatArray:
+    """`before` (the best score over rows < i, columns < j) updated with row i."""
+    best: FloatArray = np.maximum(
+        before, np.concatenate(([-np.inf], np.maximum.accumulate(row_score)))
+    )
+    return best
 
 
 def _best_so_far(
