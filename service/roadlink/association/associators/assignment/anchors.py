@@ -479,12 +479,16 @@ def _chain_scores(
                 origin[better] = where_before[columns][better]
             if i:
                 rows = np.arange(i - 1, max(i - BAND, 0) - 1, -1)  # nearest first
-                shifted = BAND - shifts[:, None] + columns[None, :]  # (shifts, columns)
+                # (rows, shifts, columns) of the pairs before.
+                before = (
+                    rows[:, None, None],
+                    BAND - shifts[None, :, None] + columns[None, None, :],
+                )
                 change = np.fmin(
-                    np.abs(log_travel[i, columns] - padded_travel[rows][:, shifted]),
-                    np.abs(kinematic[i, columns] - padded_kinematic[rows][:, shifted]),
-                )  # (rows, shifts, columns)
-                step = padded_score[rows][:, shifted] + step_score(change, smoothness, tail)
+                    np.abs(log_travel[i, columns] - padded_travel[before]),
+                    np.abs(kinematic[i, columns] - padded_kinematic[before]),
+                )
+                step = padded_score[before] + step_score(change, smoothness, tail)
                 # Rows and columns skipped between the two pairs.
                 step -= SKIP * (np.arange(rows.size)[:, None, None] + shifts[None, :, None] - 1)
                 step = np.where(np.isfinite(step), step, -np.inf)
@@ -513,17 +517,21 @@ def step_score(change: FloatArray, smoothness: float, tail: float = STEP_TAIL) -
     followers' change (a normal of spread `smoothness`, with a share `tail` of it
     STEP_TAIL_WIDTH times wider) against a change drawn evenly from +-STEP_RANGE."""
     z2 = np.square(change / smoothness)
-    if tail <= 0:
-        density: FloatArray = -0.5 * z2
-    else:
-        with np.errstate(invalid="ignore"):  # NaN stays NaN
-            density = np.logaddexp(
-                np.log1p(-tail) - 0.5 * z2,
-                np.log(tail / STEP_TAIL_WIDTH) - 0.5 * z2 / STEP_TAIL_WIDTH**2,
-            )
     even = np.log(smoothness * np.sqrt(2.0 * np.pi) / (2.0 * STEP_RANGE))
-    score: FloatArray = density - even
-    return score
+    if tail <= 0:
+        plain: FloatArray = -0.5 * z2 - even
+        return plain
+    # In place, in this order (the programme calls this for every row): log((1 - tail) N(z) +
+    # tail N(z / width) / width) relative to the even density.
+    core = np.multiply(z2, -0.5)
+    core += np.log1p(-tail)
+    wide = np.multiply(z2, 0.5, out=z2)
+    wide /= STEP_TAIL_WIDTH**2
+    np.subtract(np.log(tail / STEP_TAIL_WIDTH), wide, out=wide)
+    with np.errstate(invalid="ignore"):  # NaN stays NaN
+        np.logaddexp(core, wide, out=core)
+    core -= even
+    return core
 
 
 def _best_path(score: FloatArray, back: IntArray) -> list[tuple[int, int]]:
