@@ -399,9 +399,8 @@ def smooth_chain(
     each pair's `gain` (-inf: impossible), plus, from one pair to the next, the log likelihood
     ratio of the change of log travel time or of its kinematic error (the smaller), followers'
     change of spread `smoothness` (a share `tail` of it wider) against any (`step_score`), and
-    minus SKIP per
-    detection skipped between them; or a fresh start after any earlier pair at JUMP. Dynamic
-    programming over the pairs, each looking back BAND rows and columns."""
+    minus SKIP per detection skipped between them; or a fresh start after any earlier pair at
+    JUMP. Dynamic programming over the pairs, each looking back BAND rows and columns."""
     return _best_path(*_chain_scores(gain, log_travel, kinematic, smoothness, tail))
 
 
@@ -448,11 +447,11 @@ def _chain_scores(
     trace: bool = True,
 ) -> tuple[FloatArray, IntArray]:
     """The best score of a chain ending at each pair (`smooth_chain`), and each pair's pair
-    before in that chain (-1, -1 where it starts one; all -1 without `trace`, which only the
-    scores are asked of). Row by row, over the columns between the
-    row's first and last possible pair; within a row, every pair before it (up to BAND rows and
-    columns back) is weighed at once, nearest column shift first and then nearest row, of which
-    the first best is kept."""
+    before in that chain (-1, -1 where it starts one; all -1 without `trace`, for a run whose
+    scores alone are read). Row by row, over the columns between the row's first and last
+    possible pair; within a row, every pair before it (up to BAND rows and columns back) is
+    weighed at once, nearest column shift first and then nearest row, of which the first best is
+    kept."""
     n, m = gain.shape
     score = np.full((n, m), -np.inf)
     back = np.full((n, m, 2), -1, dtype=np.int64)
