@@ -14,7 +14,7 @@ anchored window-cut pairs of the featured stop-and-go case as targets.
 Drawing the lanes' chains again with lengths averaged along the tracks (`anchors.track_lengths`,
 session 9) moved the featured cases whose anchors weigh in (the queue, stop-and-go, and the
 bottleneck, pinned since), and the chains' heavy-tailed steps where lengths pin them
-(`anchors.step_score`, the same day) all four featured cases but free flow.
+(`chains.step_score`, the same day) all four featured cases but free flow.
 When a change of the METHOD moves a grouping on purpose, print the new digests with
 `python -m tests.association.associators.assignment.test_pinned_groupings` and say why in the
 commit.
