@@ -79,8 +79,9 @@ def link_and_learn(
     passes: Passes = Passes(),
 ) -> tuple[IntArray, SegmentModel, Anchors | None]:
     """`rounds` sequential passes from `model`, learning the segments between them (towards
-    `prior`), and lane order's anchors from the first tracks: the tracks, the last model, the
-    anchors (None where none were weighed).
+    `prior`), and lane order's anchors from the first tracks, their chains drawn again once with
+    the next tracks' lengths: the tracks, the last model, the anchors (None where none were
+    weighed).
 
     A round that builds the tracks the round before built, with the same anchors, ends the
     loop: learning is a function of the tracks, so every later round would learn this round's
