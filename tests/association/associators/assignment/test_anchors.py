@@ -272,3 +272,29 @@ def test_lengths_averaged_along_tracks_pin_chains_that_single_readings_cannot(
     np.testing.assert_array_equal(redrawn.smoothness, first.smoothness)
     some = lane_order_anchors(s, model, params, track, first, segments=[2])
     assert set(s.sensor[some.predecessor[some.predecessor >= 0]]) == {2}
+
+
+def test_chains_drawn_in_small_runs_are_the_chains_drawn_at_once(monkeypatch) -> None:
+    # The programme draws many blocks at once (`_batches`); how many must change nothing, from
+    # one block a run (and one segment a group) to all of them. Blocks of 40 make many.
+    d = read_detections_csv((SUMO_FEATURES / "sumo-bottleneck.csv").read_bytes())
+    params = AssignmentParams()
+    s = arrange(d, params)
+    model = segment_prior(s, params.max_skip + 1, params)
+    monkeypatch.setattr(anchors, "BLOCK", 40)
+    drawn = []
+    for budget in (1, 20_000, 10**9):
+        monkeypatch.setattr(anchors, "BATCH_PAIRS", budget)
+        drawn.append(lane_order_anchors(s, model, params))
+    assert np.mean(drawn[0].predecessor >= 0) > 0.5
+    for chains in drawn[1:]:
+        np.testing.assert_array_equal(chains.predecessor, drawn[0].predecessor)
+        np.testing.assert_array_equal(chains.margin, drawn[0].margin)
+        np.testing.assert_array_equal(chains.smoothness, drawn[0].smoothness)
+
+
+def test_batches_keep_the_order_and_a_budget_of_pairs(monkeypatch) -> None:
+    monkeypatch.setattr(anchors, "BATCH_PAIRS", 10)
+    runs = list(anchors._batches([4, 4, 4, 30, 1, 9], lambda size: size))
+    assert runs == [[4, 4], [4], [30], [1, 9]]
+    assert list(anchors._batches([], lambda size: size)) == []

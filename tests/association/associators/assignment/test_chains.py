@@ -118,7 +118,10 @@ def naive_chain_scores(
 
 
 def test_the_programme_scores_every_pair_as_the_recursion_says() -> None:
+    # Twenty problems of different shapes, spreads and tails, drawn in one programme as
+    # `anchors` draws a road's lanes: each scores as the recursion says, alone or batched.
     rng = np.random.default_rng(7)
+    problems = []
     for _ in range(20):
         n, m = rng.integers(1, 10, 2)
         gain = np.where(rng.random((n, m)) < 0.3, -np.inf, rng.normal(0.0, 2.0, (n, m)))
@@ -126,6 +129,12 @@ def test_the_programme_scores_every_pair_as_the_recursion_says() -> None:
         kinematic = rng.normal(0.0, 0.1, (n, m))
         smoothness = float(rng.choice([0.01, 0.03, 0.1]))
         tail = float(rng.choice([0.0, chains.STEP_TAIL]))
-        fast, _ = chains._chain_scores(gain, log_travel, kinematic, smoothness, tail)
-        naive = naive_chain_scores(gain, log_travel, kinematic, smoothness, tail)
+        problems.append(chains.ChainProblem(gain, log_travel, kinematic, smoothness, tail))
+    batched = chains._chain_scores(problems)
+    for problem, (fast, _) in zip(problems, batched, strict=True):
+        naive = naive_chain_scores(
+            problem.gain, problem.log_travel, problem.kinematic, problem.smoothness, problem.tail
+        )
         assert np.allclose(fast, naive)
+        alone, _ = chains._chain_scores([problem])[0]
+        assert np.array_equal(alone, fast)

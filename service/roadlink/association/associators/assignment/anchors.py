@@ -21,16 +21,18 @@ without anchors contradict its anchors (`weigh_anchors`). See docs/assignment.md
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
 from roadlink.association.associators.assignment.chains import (
     BAND,
     STEP_TAIL,
-    chain_margins,
-    smooth_chain,
+    ChainProblem,
+    chains_with_margins,
+    smooth_chains,
 )
 from roadlink.association.associators.assignment.features import (
     FeatureModel,
@@ -73,6 +75,11 @@ ANCHOR_BONUS = 16.0
 FULL_DISAGREEMENT = 0.4
 # Upstream detections per block of a lane's chain (see `_blocks`).
 BLOCK = 500
+# Pairs of the blocks whose chains are drawn in one programme (`_batches`): numpy's cost per
+# call is paid once for them all, and their arrays are held at once.
+BATCH_PAIRS = 1_000_000
+
+T = TypeVar("T")
 
 
 @dataclass
@@ -166,30 +173,77 @@ def lane_order_anchors(
     f = s.features
     if f is None or model.features is None or not f.has_lane():
         return chains
-    measured = np.isfinite(f.log_length)
     lengths = track_lengths(s, track)
-    for k in range(n_segments) if segments is None else segments:
-        terms = [
-            (*_pair_terms(s, model, params, k, a, b, longest, lengths), a, b)
-            for a, b, longest in _segment_blocks(s, k)
-        ]
-        # Without lengths, time alone pins a chain: a wide step would let it slip by a vehicle.
-        pinned = measured[s.members(k)].any() and measured[s.members(k + 1)].any()
-        tail = STEP_TAIL if pinned else 0.0
-        if drawn is not None and np.isfinite(drawn.smoothness[k]):
-            smoothness = float(drawn.smoothness[k])
-        else:
-            smoothness = learned_smoothness([t[:3] for t in terms], tail)
-        chains.smoothness[k] = smoothness
-        for gain, log_travel, kinematic, a, b in terms:
-            pairs, margins = chain_margins(gain, log_travel, kinematic, smoothness, tail)
+    blocks = {
+        k: _segment_blocks(s, k) for k in (range(n_segments) if segments is None else segments)
+    }
+    for group in _batches(list(blocks), lambda k: sum(a.size * b.size for a, b, _ in blocks[k])):
+        terms = {
+            k: [
+                (*_pair_terms(s, model, params, k, a, b, longest, lengths), a, b)
+                for a, b, longest in blocks[k]
+            ]
+            for k in group
+        }
+        _draw_segments(s, terms, chains, drawn)
+    return chains
+
+
+def _draw_segments(
+    s: Sensors,
+    terms: dict[int, list[tuple[FloatArray, FloatArray, FloatArray, IntArray, IntArray]]],
+    chains: Chains,
+    drawn: Chains | None,
+) -> None:
+    """Draw the chains of the segments of `terms` (each block's pair terms and its detections
+    upstream and downstream, by segment) into `chains`: their smoothness (learned, or lent by
+    the chains `drawn` before), then every block's chain and margins, in runs of blocks drawn at
+    once (`_batches`)."""
+    assert s.features is not None
+    measured = np.isfinite(s.features.log_length)
+    # Without lengths, time alone pins a chain: a wide step would let it slip by a vehicle.
+    tail = {
+        k: STEP_TAIL if measured[s.members(k)].any() and measured[s.members(k + 1)].any() else 0.0
+        for k in terms
+    }
+    lent = {
+        k: float(drawn.smoothness[k])
+        for k in terms
+        if drawn is not None and np.isfinite(drawn.smoothness[k])
+    }
+    unlearned = {k: [t[:3] for t in terms[k]] for k in terms if k not in lent}
+    smoothness = lent | learned_smoothnesses(unlearned, tail)
+    for k in terms:
+        chains.smoothness[k] = smoothness[k]
+    problems = [
+        (ChainProblem(gain, log_travel, kinematic, smoothness[k], tail[k]), a, b)
+        for k in terms
+        for gain, log_travel, kinematic, a, b in terms[k]
+    ]
+    for run in _batches(problems, lambda p: p[0].gain.size):
+        drawn_run = chains_with_margins([problem for problem, _, _ in run])
+        for (_, a, b), (pairs, margins) in zip(run, drawn_run, strict=True):
             if not pairs:
                 continue
             i, j = np.array(pairs).T
             timed_only = ~(measured[a[i]] & measured[b[j]])
             chains.predecessor[b[j]] = a[i]
             chains.margin[b[j]] = np.where(timed_only, LANE_ONLY_MARGIN * margins, margins)
-    return chains
+
+
+def _batches(items: list[T], size: Callable[[T], int]) -> Iterator[list[T]]:
+    """`items` in order, in runs of at most BATCH_PAIRS pairs (of `size` each; an item larger
+    than that alone): the chains' programme draws a run at once, and its memory grows with it."""
+    run: list[T] = []
+    total = 0
+    for item in items:
+        if run and total + size(item) > BATCH_PAIRS:
+            yield run
+            run, total = [], 0
+        run.append(item)
+        total += size(item)
+    if run:
+        yield run
 
 
 def learned_smoothness(
@@ -199,17 +253,32 @@ def learned_smoothness(
     robust spread of the steps of its chains drawn at LOOSE_SMOOTHNESS (over blocks until
     SMOOTHNESS_SAMPLE steps, so a long day costs no more than a short one), within
     SMOOTHNESS_BOUNDS (LOOSE_SMOOTHNESS where they take fewer than two steps)."""
-    steps, taken = [np.zeros(0)], 0
-    for gain, log_travel, kinematic in terms:
-        if taken >= SMOOTHNESS_SAMPLE:
+    return learned_smoothnesses({0: terms}, {0: tail})[0]
+
+
+def learned_smoothnesses(
+    terms: dict[int, list[tuple[FloatArray, FloatArray, FloatArray]]], tail: dict[int, float]
+) -> dict[int, float]:
+    """Each segment's `learned_smoothness`, every segment's next block drawn in one programme."""
+    steps: dict[int, list[FloatArray]] = {k: [np.zeros(0)] for k in terms}
+    taken = dict.fromkeys(terms, 0)
+    for block in range(max((len(t) for t in terms.values()), default=0)):
+        due = [k for k in terms if taken[k] < SMOOTHNESS_SAMPLE and block < len(terms[k])]
+        if not due:
             break
-        pairs = smooth_chain(gain, log_travel, kinematic, LOOSE_SMOOTHNESS, tail)
-        steps.append(_step_changes(log_travel, kinematic, pairs))
-        taken += steps[-1].size
-    changes = np.concatenate(steps)
-    if changes.size < 2:
-        return LOOSE_SMOOTHNESS
-    return float(np.clip(MAD_TO_STD * median(changes), *SMOOTHNESS_BOUNDS))
+        problems = [ChainProblem(*terms[k][block], LOOSE_SMOOTHNESS, tail[k]) for k in due]
+        for k, problem, pairs in zip(due, problems, smooth_chains(problems), strict=True):
+            steps[k].append(_step_changes(problem.log_travel, problem.kinematic, pairs))
+            taken[k] += steps[k][-1].size
+    smoothness = {}
+    for k in terms:
+        changes = np.concatenate(steps[k])
+        smoothness[k] = (
+            LOOSE_SMOOTHNESS
+            if changes.size < 2
+            else float(np.clip(MAD_TO_STD * median(changes), *SMOOTHNESS_BOUNDS))
+        )
+    return smoothness
 
 
 def _step_changes(

@@ -10,6 +10,9 @@ docs/assignment.md (Lane order).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import numpy as np
 
 from roadlink.association.detections import FloatArray, IntArray
@@ -36,6 +39,29 @@ SKIP = 1.5
 JUMP = 6.0
 
 
+@dataclass(frozen=True)
+class ChainProblem:
+    """One chain to draw: each pair's gain (-inf: impossible), log travel time and kinematic
+    error (rows upstream, columns downstream, both in time order), followers' spread of the
+    change of log travel time, and the share of it that is wider (`step_score`)."""
+
+    gain: FloatArray
+    log_travel: FloatArray
+    kinematic: FloatArray
+    smoothness: float
+    tail: float = STEP_TAIL
+
+    def reversed(self) -> ChainProblem:
+        """The same pairs read from the last row and column back."""
+        return ChainProblem(
+            self.gain[::-1, ::-1],
+            self.log_travel[::-1, ::-1],
+            self.kinematic[::-1, ::-1],
+            self.smoothness,
+            self.tail,
+        )
+
+
 def smooth_chain(
     gain: FloatArray,
     log_travel: FloatArray,
@@ -49,7 +75,12 @@ def smooth_chain(
     change of spread `smoothness` (a share `tail` of it wider) against any (`step_score`), and
     minus SKIP per detection skipped between them; or a fresh start after any earlier pair at
     JUMP. Dynamic programming over the pairs, each looking back BAND rows and columns."""
-    return _best_path(*_chain_scores(gain, log_travel, kinematic, smoothness, tail))
+    return smooth_chains([ChainProblem(gain, log_travel, kinematic, smoothness, tail)])[0]
+
+
+def smooth_chains(problems: Sequence[ChainProblem]) -> list[list[tuple[int, int]]]:
+    """Each problem's `smooth_chain`, all drawn in one programme (`_chain_scores`)."""
+    return [_best_path(score, back) for score, back in _chain_scores(problems)]
 
 
 def chain_margins(
@@ -64,18 +95,29 @@ def chain_margins(
     shifted alignment scores nearly as well as is a guess, one that every rival scores far below
     is sure. The chains through each pair are scored by running the programme forwards and
     backwards (the score of a chain does not depend on the direction it is read in)."""
-    forwards, back = _chain_scores(gain, log_travel, kinematic, smoothness, tail)
+    return chains_with_margins([ChainProblem(gain, log_travel, kinematic, smoothness, tail)])[0]
+
+
+def chains_with_margins(
+    problems: Sequence[ChainProblem],
+) -> list[tuple[list[tuple[int, int]], FloatArray]]:
+    """Each problem's `chain_margins`, all drawn in one programme forwards and one backwards."""
+    forwards = _chain_scores(problems)
+    backwards = _chain_scores([p.reversed() for p in problems], trace=False)
+    return [
+        _margins(p.gain, score, back, backward[0][::-1, ::-1])
+        for p, (score, back), backward in zip(problems, forwards, backwards, strict=True)
+    ]
+
+
+def _margins(
+    gain: FloatArray, forwards: FloatArray, back: IntArray, backwards: FloatArray
+) -> tuple[list[tuple[int, int]], FloatArray]:
+    """The best chain and its pairs' margins (`chain_margins`), from the scores of the chains
+    ending at each pair read forwards and backwards."""
     pairs = _best_path(forwards, back)
     if not pairs:
         return pairs, np.zeros(0)
-    backwards = _chain_scores(
-        gain[::-1, ::-1],
-        log_travel[::-1, ::-1],
-        kinematic[::-1, ::-1],
-        smoothness,
-        tail,
-        trace=False,
-    )[0][::-1, ::-1]
     with np.errstate(invalid="ignore"):  # -inf - -inf where a pair is impossible
         through = np.where(np.isfinite(gain), forwards + backwards - gain, -np.inf)
     i, j = np.array(pairs).T
@@ -86,77 +128,187 @@ def chain_margins(
     return pairs, through[i, j] - rival
 
 
+@dataclass
+class _Batch:
+    """Many problems' arrays laid end to end, row by row, each row padded on the left with BAND
+    impossible columns (so that every look back reads in range): problem p's pair (i, j) is at
+    `base[p] + i * width[p] + BAND + j`."""
+
+    rows: IntArray
+    columns: IntArray
+    width: IntArray
+    base: IntArray
+    gain: FloatArray
+    log_travel: FloatArray
+    kinematic: FloatArray
+
+    @classmethod
+    def of(cls, problems: Sequence[ChainProblem]) -> _Batch:
+        rows = np.array([p.gain.shape[0] for p in problems], dtype=np.int64)
+        columns = np.array([p.gain.shape[1] for p in problems], dtype=np.int64)
+        width = columns + BAND
+        base = np.concatenate(([0], np.cumsum(rows * width)[:-1])).astype(np.int64)
+
+        def laid(arrays: list[FloatArray], fill: float) -> FloatArray:
+            padded = [np.pad(a, ((0, 0), (BAND, 0)), constant_values=fill) for a in arrays]
+            return np.concatenate([a.ravel() for a in padded]) if padded else np.zeros(0)
+
+        return cls(
+            rows,
+            columns,
+            width,
+            base,
+            laid([p.gain for p in problems], -np.inf),
+            laid([p.log_travel for p in problems], np.nan),
+            laid([p.kinematic for p in problems], np.nan),
+        )
+
+    def possible_columns(self, problems: Sequence[ChainProblem]) -> tuple[IntArray, IntArray]:
+        """Each row's first and last possible column (-1 where it has none), every problem's
+        rows end to end."""
+        first, last = [], []
+        for p in problems:
+            finite = np.isfinite(p.gain)
+            has = finite.any(axis=1)
+            first.append(np.where(has, np.argmax(finite, axis=1), -1))
+            last.append(np.where(has, p.gain.shape[1] - 1 - np.argmax(finite[:, ::-1], axis=1), -1))
+        empty = np.zeros(0, dtype=np.int64)
+        return (
+            np.concatenate(first).astype(np.int64) if first else empty,
+            np.concatenate(last).astype(np.int64) if last else empty,
+        )
+
+
 def _chain_scores(
-    gain: FloatArray,
-    log_travel: FloatArray,
-    kinematic: FloatArray,
-    smoothness: float,
-    tail: float = STEP_TAIL,
-    trace: bool = True,
-) -> tuple[FloatArray, IntArray]:
-    """The best score of a chain ending at each pair (`smooth_chain`), and each pair's pair
-    before in that chain (-1, -1 where it starts one; all -1 without `trace`, for a run whose
-    scores alone are read). Row by row, over the columns between the row's first and last
-    possible pair; within a row, every pair before it (up to BAND rows and columns back) is
-    weighed at once, nearest column shift first and then nearest row, of which the first best is
-    kept."""
-    n, m = gain.shape
-    score = np.full((n, m), -np.inf)
-    back = np.full((n, m, 2), -1, dtype=np.int64)
-    # Columns padded with BAND impossible ones on the left, so that every shift reads in range:
-    # shift d of column j reads padded column j + BAND - d.
-    padded_score = np.full((n, m + BAND), -np.inf)
-    padded_travel = np.pad(log_travel, ((0, 0), (BAND, 0)), constant_values=np.nan)
-    padded_kinematic = np.pad(kinematic, ((0, 0), (BAND, 0)), constant_values=np.nan)
+    problems: Sequence[ChainProblem], trace: bool = True
+) -> list[tuple[FloatArray, IntArray]]:
+    """For each problem, the best score of a chain ending at each pair (`smooth_chain`), and
+    each pair's pair before in that chain (-1, -1 where it starts one; all -1 without `trace`,
+    for a run whose scores alone are read).
+
+    Row by row, every problem's row i at once (one chain's rows depend on its rows before, but
+    problems are independent, and a row is too short to pay numpy's cost per call on its own),
+    over the columns between the row's first and last possible pair; within a row, every pair
+    before it (up to BAND rows and columns back) is weighed at once, nearest column shift first
+    and then nearest row, of which the first best is kept."""
+    batch = _Batch.of(problems)
+    score = np.full(batch.gain.size, -np.inf)
+    back = np.full((int(np.sum(batch.rows * batch.columns)), 2), -1, dtype=np.int64)
+    back_base = np.concatenate(([0], np.cumsum(batch.rows * batch.columns)[:-1])).astype(np.int64)
+    row_start = np.concatenate(([0], np.cumsum(batch.rows)[:-1])).astype(np.int64)
+    first, last = batch.possible_columns(problems)
+    steps = _StepScores.of(problems)
+    # best_before[p, j]: the best score over problem p's rows so far and columns < j, and where.
+    widest = int(batch.columns.max(initial=0))
+    best_before = np.full((len(problems), widest + 1), -np.inf)
+    where_before = np.full((len(problems), widest + 1, 2), -1, dtype=np.int64)
     shifts = np.arange(1, BAND + 1)
-    # best_before[j]: the best score over pairs in the rows so far and columns < j, and where.
-    best_before = np.full(m + 1, -np.inf)
-    where_before = np.full((m + 1, 2), -1, dtype=np.int64)
-    finite = np.isfinite(gain)
-    for i in range(n):
-        possible = np.flatnonzero(finite[i])
-        if possible.size:
-            columns = np.arange(possible[0], possible[-1] + 1)
-            row = np.zeros(columns.size)  # a chain may start at any pair
-            jump = best_before[columns] - JUMP
-            better = jump > row
-            row[better] = jump[better]
-            if trace:
-                origin = np.full((columns.size, 2), -1, dtype=np.int64)
-                origin[better] = where_before[columns][better]
-            if i:
-                rows = np.arange(i - 1, max(i - BAND, 0) - 1, -1)  # nearest first
-                # (rows, shifts, columns) of the pairs before.
-                before = (
-                    rows[:, None, None],
-                    BAND - shifts[None, :, None] + columns[None, None, :],
-                )
-                change = np.fmin(
-                    np.abs(log_travel[i, columns] - padded_travel[before]),
-                    np.abs(kinematic[i, columns] - padded_kinematic[before]),
-                )
-                step = padded_score[before] + step_score(change, smoothness, tail)
-                # Rows and columns skipped between the two pairs.
-                step -= SKIP * (np.arange(rows.size)[:, None, None] + shifts[None, :, None] - 1)
-                step = np.where(np.isfinite(step), step, -np.inf)
-                candidates = step.transpose(1, 0, 2).reshape(-1, columns.size)  # shift-major
-                first_best = np.argmax(candidates, axis=0)
-                best = candidates[first_best, np.arange(columns.size)]
-                improved = np.flatnonzero(best > row)
-                row[improved] = best[improved]
-                if trace:
-                    origin[improved, 0] = rows[first_best[improved] % rows.size]
-                    chosen = shifts[first_best[improved] // rows.size]
-                    origin[improved, 1] = columns[improved] - chosen
-            score[i, columns] = row + gain[i, columns]
-            if trace:
-                back[i, columns] = origin
-        padded_score[i, BAND:] = score[i]
+    for i in range(int(batch.rows.max(initial=0))):
+        active = np.flatnonzero(batch.rows > i)
+        at = row_start[active] + i
+        active, at = active[first[at] >= 0], at[first[at] >= 0]
+        if not active.size:
+            continue
+        count = last[at] - first[at] + 1
+        owner = np.repeat(active, count)  # each pair's problem
+        local = np.repeat(np.arange(active.size), count)
+        column = (
+            np.repeat(first[at], count)
+            + np.arange(owner.size)
+            - np.repeat(np.cumsum(count) - count, count)
+        )
+        row_base = batch.base[owner] + i * batch.width[owner] + BAND
+        here = row_base + column
+        row = np.zeros(owner.size)  # a chain may start at any pair
+        jump = best_before[owner, column] - JUMP
+        better = jump > row
+        row[better] = jump[better]
         if trace:
-            best_before, where_before = _best_so_far(score[i], i, best_before, where_before)
+            origin = np.full((owner.size, 2), -1, dtype=np.int64)
+            origin[better] = where_before[owner, column][better]
+        if i:
+            rows = np.arange(i - 1, max(i - BAND, 0) - 1, -1)  # nearest first
+            # (rows, shifts, pairs) of the pairs before.
+            before = (
+                (row_base - BAND + column)[None, None, :]
+                + ((rows - i)[:, None, None] * batch.width[owner][None, None, :])
+                + (BAND - shifts)[None, :, None]
+            )
+            change = np.fmin(
+                np.abs(batch.log_travel[here] - batch.log_travel[before]),
+                np.abs(batch.kinematic[here] - batch.kinematic[before]),
+            )
+            step = score[before] + steps.score(change, owner)
+            # Rows and columns skipped between the two pairs.
+            step -= SKIP * (np.arange(rows.size)[:, None, None] + shifts[None, :, None] - 1)
+            step = np.where(np.isfinite(step), step, -np.inf)
+            candidates = step.transpose(1, 0, 2).reshape(-1, owner.size)  # shift-major
+            first_best = np.argmax(candidates, axis=0)
+            best = candidates[first_best, np.arange(owner.size)]
+            improved = np.flatnonzero(best > row)
+            row[improved] = best[improved]
+            if trace:
+                origin[improved, 0] = rows[first_best[improved] % rows.size]
+                chosen = shifts[first_best[improved] // rows.size]
+                origin[improved, 1] = column[improved] - chosen
+        score[here] = row + batch.gain[here]
+        if trace:
+            back[back_base[owner] + i * batch.columns[owner] + column] = origin
+        row_scores = np.full((active.size, widest), -np.inf)
+        row_scores[local, column] = score[here]
+        if trace:
+            best_before[active], where_before[active] = _best_so_far(
+                row_scores, i, best_before[active], where_before[active]
+            )
         else:
-            best_before = _best_scores_so_far(score[i], best_before)
-    return score, back
+            best_before[active] = _best_scores_so_far(row_scores, best_before[active])
+    results = []
+    for p in range(len(problems)):
+        n, m = int(batch.rows[p]), int(batch.columns[p])
+        laid = score[batch.base[p] : batch.base[p] + n * (m + BAND)].reshape(n, m + BAND)
+        pointers = back[back_base[p] : back_base[p] + n * m].reshape(n, m, 2)
+        results.append((laid[:, BAND:], pointers))
+    return results
+
+
+@dataclass(frozen=True)
+class _StepScores:
+    """What `step_score` needs of each problem, as arrays to index by each pair's problem:
+    scalars computed as `step_score` computes them, so that every step scores the same."""
+
+    smoothness: FloatArray
+    log_core: FloatArray  # log(1 - tail)
+    log_wide: FloatArray  # log(tail / STEP_TAIL_WIDTH); -inf without a tail
+    even: FloatArray
+
+    @classmethod
+    def of(cls, problems: Sequence[ChainProblem]) -> _StepScores:
+        with np.errstate(divide="ignore"):  # log(0) = -inf: no wide steps
+            return cls(
+                np.array([p.smoothness for p in problems], dtype=np.float64),
+                np.array([np.log1p(-p.tail) for p in problems], dtype=np.float64),
+                np.array([np.log(p.tail / STEP_TAIL_WIDTH) for p in problems], dtype=np.float64),
+                np.array([_even(p.smoothness) for p in problems], dtype=np.float64),
+            )
+
+    def score(self, change: FloatArray, owner: IntArray) -> FloatArray:
+        """`step_score` of each step (pairs along the last axis, of problems `owner`). Without
+        a tail the wide term is -inf and adds nothing: log(e^x + 0) = x, exactly."""
+        z2 = np.square(change / self.smoothness[owner])
+        core = np.multiply(z2, -0.5)
+        core += self.log_core[owner]
+        wide = np.multiply(z2, 0.5, out=z2)
+        wide /= STEP_TAIL_WIDTH**2
+        np.subtract(self.log_wide[owner], wide, out=wide)
+        with np.errstate(invalid="ignore"):  # NaN stays NaN
+            np.logaddexp(core, wide, out=core)
+        core -= self.even[owner]
+        return core
+
+
+def _even(smoothness: float) -> float:
+    """The log of followers' peak density against a change drawn evenly within +-STEP_RANGE."""
+    return float(np.log(smoothness * np.sqrt(2.0 * np.pi) / (2.0 * STEP_RANGE)))
 
 
 def step_score(change: FloatArray, smoothness: float, tail: float = STEP_TAIL) -> FloatArray:
@@ -164,7 +316,7 @@ def step_score(change: FloatArray, smoothness: float, tail: float = STEP_TAIL) -
     followers' change (a normal of spread `smoothness`, with a share `tail` of it
     STEP_TAIL_WIDTH times wider) against a change drawn evenly from +-STEP_RANGE."""
     z2 = np.square(change / smoothness)
-    even = np.log(smoothness * np.sqrt(2.0 * np.pi) / (2.0 * STEP_RANGE))
+    even = _even(smoothness)
     if tail <= 0:
         plain: FloatArray = -0.5 * z2 - even
         return plain
@@ -193,25 +345,28 @@ def _best_path(score: FloatArray, back: IntArray) -> list[tuple[int, int]]:
     return pairs[::-1]
 
 
-def _best_scores_so_far(row_score: FloatArray, before: FloatArray) -> FloatArray:
-    """`before` (the best score over rows < i, columns < j) updated with row i."""
-    best: FloatArray = np.maximum(
-        before, np.concatenate(([-np.inf], np.maximum.accumulate(row_score)))
-    )
+def _best_scores_so_far(row_scores: FloatArray, before: FloatArray) -> FloatArray:
+    """`before` (per problem, the best score over rows < i, columns < j) updated with each
+    problem's row i (`row_scores`, one problem a row)."""
+    running = np.maximum.accumulate(row_scores, axis=1)
+    shifted = np.concatenate((np.full((running.shape[0], 1), -np.inf), running), axis=1)
+    best: FloatArray = np.maximum(before, shifted)
     return best
 
 
 def _best_so_far(
-    row_score: FloatArray, i: int, before: FloatArray, where: IntArray
+    row_scores: FloatArray, i: int, before: FloatArray, where: IntArray
 ) -> tuple[FloatArray, IntArray]:
-    """`before` and `where` (best over rows < i, columns < j) updated with row i."""
-    m = row_score.size
-    running = np.maximum.accumulate(row_score)
-    argmax = np.maximum.accumulate(np.where(row_score >= running, np.arange(m), 0))
+    """`before` and `where` (per problem, the best over rows < i, columns < j) updated with each
+    problem's row i (`row_scores`, one problem a row)."""
+    count, m = row_scores.shape
+    running = np.maximum.accumulate(row_scores, axis=1)
+    argmax = np.maximum.accumulate(np.where(row_scores >= running, np.arange(m), 0), axis=1)
     # Over columns < j: shift by one.
-    candidate = np.concatenate(([-np.inf], running))
-    candidate_column = np.concatenate(([-1], argmax))
+    candidate = np.concatenate((np.full((count, 1), -np.inf), running), axis=1)
+    candidate_column = np.concatenate((np.full((count, 1), -1), argmax), axis=1)
     take = candidate > before
     best = np.where(take, candidate, before)
-    at = np.where(take[:, None], np.stack([np.full(m + 1, i), candidate_column], axis=1), where)
+    here = np.stack([np.full((count, m + 1), i), candidate_column], axis=2)
+    at = np.where(take[:, :, None], here, where)
     return best, at
