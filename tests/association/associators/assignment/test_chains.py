@@ -138,3 +138,13 @@ def test_the_programme_scores_every_pair_as_the_recursion_says() -> None:
         assert np.allclose(fast, naive)
         alone, _ = chains._chain_scores([problem])[0]
         assert np.array_equal(alone, fast)
+
+
+def test_no_problems_draw_no_chains_and_impossible_ones_draw_empty_chains() -> None:
+    assert chains.smooth_chains([]) == []
+    assert chains.chains_with_margins([]) == []
+    nothing = np.full((3, 4), -np.inf)
+    ones = np.ones((3, 4))
+    impossible = chains.ChainProblem(nothing, ones, ones, SMOOTHNESS)
+    pairs, margins = chains.chains_with_margins([impossible, impossible])[1]
+    assert pairs == [] and margins.size == 0
