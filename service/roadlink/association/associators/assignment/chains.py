@@ -128,11 +128,25 @@ def _margins(
     return pairs, through[i, j] - rival
 
 
+@dataclass(frozen=True)
+class _RowPairs:
+    """The possible pairs of row i of every problem that has one: the problems (`active`), and
+    for each pair its problem, the problem's place in `active`, its column, and where it lies
+    in the batch's arrays."""
+
+    active: IntArray
+    owner: IntArray
+    local: IntArray
+    column: IntArray
+    here: IntArray
+
+
 @dataclass
 class _Batch:
     """Many problems' arrays laid end to end, row by row, each row padded on the left with BAND
     impossible columns (so that every look back reads in range): problem p's pair (i, j) is at
-    `base[p] + i * width[p] + BAND + j`."""
+    `base[p] + i * width[p] + BAND + j`. With each row's first and last possible column (-1
+    where it has none), every problem's rows end to end from `row_start[p]`."""
 
     rows: IntArray
     columns: IntArray
@@ -141,42 +155,71 @@ class _Batch:
     gain: FloatArray
     log_travel: FloatArray
     kinematic: FloatArray
+    row_start: IntArray
+    first: IntArray
+    last: IntArray
 
     @classmethod
     def of(cls, problems: Sequence[ChainProblem]) -> _Batch:
         rows = np.array([p.gain.shape[0] for p in problems], dtype=np.int64)
         columns = np.array([p.gain.shape[1] for p in problems], dtype=np.int64)
         width = columns + BAND
-        base = np.concatenate(([0], np.cumsum(rows * width)[:-1])).astype(np.int64)
-
-        def laid(arrays: list[FloatArray], fill: float) -> FloatArray:
-            padded = [np.pad(a, ((0, 0), (BAND, 0)), constant_values=fill) for a in arrays]
-            return np.concatenate([a.ravel() for a in padded]) if padded else np.zeros(0)
-
+        first, last = _possible_columns(problems)
         return cls(
             rows,
             columns,
             width,
-            base,
-            laid([p.gain for p in problems], -np.inf),
-            laid([p.log_travel for p in problems], np.nan),
-            laid([p.kinematic for p in problems], np.nan),
+            _starts(rows * width),
+            _laid([p.gain for p in problems], -np.inf),
+            _laid([p.log_travel for p in problems], np.nan),
+            _laid([p.kinematic for p in problems], np.nan),
+            _starts(rows),
+            first,
+            last,
         )
 
-    def possible_columns(self, problems: Sequence[ChainProblem]) -> tuple[IntArray, IntArray]:
-        """Each row's first and last possible column (-1 where it has none), every problem's
-        rows end to end."""
-        first, last = [], []
-        for p in problems:
-            finite = np.isfinite(p.gain)
-            has = finite.any(axis=1)
-            first.append(np.where(has, np.argmax(finite, axis=1), -1))
-            last.append(np.where(has, p.gain.shape[1] - 1 - np.argmax(finite[:, ::-1], axis=1), -1))
-        empty = np.zeros(0, dtype=np.int64)
-        return (
-            np.concatenate(first).astype(np.int64) if first else empty,
-            np.concatenate(last).astype(np.int64) if last else empty,
-        )
+    def row_pairs(self, i: int) -> _RowPairs | None:
+        """Row i's possible pairs, every problem's (None where no problem has one)."""
+        active = np.flatnonzero(self.rows > i)
+        at = self.row_start[active] + i
+        active, at = active[self.first[at] >= 0], at[self.first[at] >= 0]
+        if not active.size:
+            return None
+        count = self.last[at] - self.first[at] + 1
+        owner = np.repeat(active, count)
+        starts = np.repeat(np.cumsum(count) - count, count)
+        column = np.repeat(self.first[at], count) + np.arange(owner.size) - starts
+        here = self.base[owner] + i * self.width[owner] + BAND + column
+        return _RowPairs(active, owner, np.repeat(np.arange(active.size), count), column, here)
+
+    def scores_of(self, score: FloatArray, p: int) -> FloatArray:
+        """Problem p's scores (rows, columns) out of the batch's laid-out `score`."""
+        n, width = int(self.rows[p]), int(self.width[p])
+        laid: FloatArray = score[self.base[p] : self.base[p] + n * width].reshape(n, width)
+        return laid[:, BAND:]
+
+
+def _starts(sizes: IntArray) -> IntArray:
+    """Where each of consecutive runs of `sizes` starts."""
+    return np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
+
+
+def _laid(arrays: list[FloatArray], fill: float) -> FloatArray:
+    """The arrays' rows end to end, each padded on the left with BAND `fill`s."""
+    padded = [np.pad(a, ((0, 0), (BAND, 0)), constant_values=fill) for a in arrays]
+    return np.concatenate([a.ravel() for a in padded]) if padded else np.zeros(0)
+
+
+def _possible_columns(problems: Sequence[ChainProblem]) -> tuple[IntArray, IntArray]:
+    """Each row's first and last possible column (-1 where it has none), every problem's rows
+    end to end."""
+    first, last = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+    for p in problems:
+        finite = np.isfinite(p.gain)
+        has = finite.any(axis=1)
+        first.append(np.where(has, np.argmax(finite, axis=1), -1))
+        last.append(np.where(has, p.gain.shape[1] - 1 - np.argmax(finite[:, ::-1], axis=1), -1))
+    return np.concatenate(first).astype(np.int64), np.concatenate(last).astype(np.int64)
 
 
 def _chain_scores(
@@ -194,81 +237,79 @@ def _chain_scores(
     batch = _Batch.of(problems)
     score = np.full(batch.gain.size, -np.inf)
     back = np.full((int(np.sum(batch.rows * batch.columns)), 2), -1, dtype=np.int64)
-    back_base = np.concatenate(([0], np.cumsum(batch.rows * batch.columns)[:-1])).astype(np.int64)
-    row_start = np.concatenate(([0], np.cumsum(batch.rows)[:-1])).astype(np.int64)
-    first, last = batch.possible_columns(problems)
+    back_base = _starts(batch.rows * batch.columns)
     steps = _StepScores.of(problems)
     # best_before[p, j]: the best score over problem p's rows so far and columns < j, and where.
     widest = int(batch.columns.max(initial=0))
     best_before = np.full((len(problems), widest + 1), -np.inf)
     where_before = np.full((len(problems), widest + 1, 2), -1, dtype=np.int64)
-    shifts = np.arange(1, BAND + 1)
     for i in range(int(batch.rows.max(initial=0))):
-        active = np.flatnonzero(batch.rows > i)
-        at = row_start[active] + i
-        active, at = active[first[at] >= 0], at[first[at] >= 0]
-        if not active.size:
+        pairs = batch.row_pairs(i)
+        if pairs is None:
             continue
-        count = last[at] - first[at] + 1
-        owner = np.repeat(active, count)  # each pair's problem
-        local = np.repeat(np.arange(active.size), count)
-        column = (
-            np.repeat(first[at], count)
-            + np.arange(owner.size)
-            - np.repeat(np.cumsum(count) - count, count)
-        )
-        row_base = batch.base[owner] + i * batch.width[owner] + BAND
-        here = row_base + column
+        owner, column, here = pairs.owner, pairs.column, pairs.here
         row = np.zeros(owner.size)  # a chain may start at any pair
         jump = best_before[owner, column] - JUMP
         better = jump > row
         row[better] = jump[better]
+        origin = np.full((owner.size, 2), -1, dtype=np.int64)
         if trace:
-            origin = np.full((owner.size, 2), -1, dtype=np.int64)
             origin[better] = where_before[owner, column][better]
         if i:
-            rows = np.arange(i - 1, max(i - BAND, 0) - 1, -1)  # nearest first
-            # (rows, shifts, pairs) of the pairs before.
-            before = (
-                (row_base - BAND + column)[None, None, :]
-                + ((rows - i)[:, None, None] * batch.width[owner][None, None, :])
-                + (BAND - shifts)[None, :, None]
-            )
-            change = np.fmin(
-                np.abs(batch.log_travel[here] - batch.log_travel[before]),
-                np.abs(batch.kinematic[here] - batch.kinematic[before]),
-            )
-            step = score[before] + steps.score(change, owner)
-            # Rows and columns skipped between the two pairs.
-            step -= SKIP * (np.arange(rows.size)[:, None, None] + shifts[None, :, None] - 1)
-            step = np.where(np.isfinite(step), step, -np.inf)
-            candidates = step.transpose(1, 0, 2).reshape(-1, owner.size)  # shift-major
-            first_best = np.argmax(candidates, axis=0)
-            best = candidates[first_best, np.arange(owner.size)]
+            best, rows, shift = _best_step(batch, score, steps, pairs, i)
             improved = np.flatnonzero(best > row)
             row[improved] = best[improved]
-            if trace:
-                origin[improved, 0] = rows[first_best[improved] % rows.size]
-                chosen = shifts[first_best[improved] // rows.size]
-                origin[improved, 1] = column[improved] - chosen
+            origin[improved, 0] = rows[improved]
+            origin[improved, 1] = column[improved] - shift[improved]
         score[here] = row + batch.gain[here]
+        row_scores = np.full((pairs.active.size, widest), -np.inf)
+        row_scores[pairs.local, column] = score[here]
+        active = pairs.active
         if trace:
             back[back_base[owner] + i * batch.columns[owner] + column] = origin
-        row_scores = np.full((active.size, widest), -np.inf)
-        row_scores[local, column] = score[here]
-        if trace:
             best_before[active], where_before[active] = _best_so_far(
                 row_scores, i, best_before[active], where_before[active]
             )
         else:
             best_before[active] = _best_scores_so_far(row_scores, best_before[active])
-    results = []
-    for p in range(len(problems)):
-        n, m = int(batch.rows[p]), int(batch.columns[p])
-        laid = score[batch.base[p] : batch.base[p] + n * (m + BAND)].reshape(n, m + BAND)
-        pointers = back[back_base[p] : back_base[p] + n * m].reshape(n, m, 2)
-        results.append((laid[:, BAND:], pointers))
-    return results
+    return [
+        (
+            batch.scores_of(score, p),
+            back[back_base[p] : back_base[p] + batch.rows[p] * batch.columns[p]].reshape(
+                batch.rows[p], batch.columns[p], 2
+            ),
+        )
+        for p in range(len(problems))
+    ]
+
+
+def _best_step(
+    batch: _Batch, score: FloatArray, steps: _StepScores, pairs: _RowPairs, i: int
+) -> tuple[FloatArray, IntArray, IntArray]:
+    """For each pair of row i, the best score of a chain ending at a pair before it (up to BAND
+    rows and columns back, nearest column shift first and then nearest row, the first best kept)
+    plus the step from that pair; and that pair's row and column shift."""
+    owner, here = pairs.owner, pairs.here
+    rows = np.arange(i - 1, max(i - BAND, 0) - 1, -1)  # nearest first
+    shifts = np.arange(1, BAND + 1)
+    # (rows, shifts, pairs) of the pairs before.
+    before = (
+        (here - BAND)[None, None, :]
+        + ((rows - i)[:, None, None] * batch.width[owner][None, None, :])
+        + (BAND - shifts)[None, :, None]
+    )
+    change = np.fmin(
+        np.abs(batch.log_travel[here] - batch.log_travel[before]),
+        np.abs(batch.kinematic[here] - batch.kinematic[before]),
+    )
+    step = score[before] + steps.score(change, owner)
+    # Rows and columns skipped between the two pairs.
+    step -= SKIP * (np.arange(rows.size)[:, None, None] + shifts[None, :, None] - 1)
+    step = np.where(np.isfinite(step), step, -np.inf)
+    candidates = step.transpose(1, 0, 2).reshape(-1, owner.size)  # shift-major
+    first_best = np.argmax(candidates, axis=0)
+    best = candidates[first_best, np.arange(owner.size)]
+    return best, rows[first_best % rows.size], shifts[first_best // rows.size]
 
 
 @dataclass(frozen=True)
