@@ -72,8 +72,9 @@ def row_columns(rows: list[Row]) -> dict[str, Any]:
     for name in TEXT_FIELDS:
         columns[name] = list(map(attrgetter(name), rows))
     for name in FEATURE_NUMBER_FIELDS:
-        values = list(map(attrgetter(name), rows))
-        columns[name] = None if _none(values) else np.array(values, dtype=np.float64)
+        # None is NaN to numpy, and a JSON number never is: NaN is "not reported".
+        values = np.fromiter(map(attrgetter(name), rows), np.float64, n)
+        columns[name] = None if bool(np.isnan(values).all()) else values
     if _none(columns["vehicle_class"]):
         columns["vehicle_class"] = None
     return columns
