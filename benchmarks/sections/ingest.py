@@ -12,9 +12,9 @@ The same batch with the three detector features (lane, length, vehicle class) is
 same loop, right before or after the batch without them (the order alternating repeat by
 repeat): the median of each repeat's with / without, goal at most 1.15 (issue 17). Beside it the
 floor of that ratio, what no service can avoid with the larger body: the library's parse of it
-(`orjson.loads`; polars' `read_csv` as the CSV fast path calls it), timed in this process, and its
-receive (the same body POSTed as text/plain, which the route refuses with a 415 once it has
-read it), each against the body without features, in the same loop.
+(msgspec's typed decode, polars' `read_csv`, as the fast paths call them), timed in this
+process, and its receive (the same body POSTed as text/plain, which the route refuses with a
+415 once it has read it), each against the body without features, in the same loop.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ from benchmarks.datasets import cached_dataset, load_detections, scaled_config, 
 from benchmarks.live_service import checked, create_deployment, json_batch, live_service
 from benchmarks.report import Column, Sample, Section, Table
 from benchmarks.scaleout import fresh_database, postgres_answers
+from roadlink.api.json_detections import decode_rows
 from roadlink.association.csvio import write_detections_csv
 from roadlink.association.detections import Detections
 from roadlink.settings import Settings
@@ -183,10 +184,11 @@ def databases(backend: str, directory: Path) -> Iterator[tuple[str, PlainDatabas
 
 
 def library_parse(kind: str, body: bytes) -> object:
-    """The parsing library's own read of a body: orjson's, or polars' as the CSV fast path
-    calls it (numbers typed, the rest text, no quoting)."""
+    """The parsing library's own read of a body as the service's fast paths call it: msgspec's
+    typed decode into rows (`decode_rows`), or polars' (numbers typed, the rest text, no
+    quoting)."""
     if kind.startswith("json"):
-        return orjson.loads(body)
+        return decode_rows(body)
     header = body[: body.index(b"\n")].decode().split(",")
     numbers = ("position", "velocity", "timestamp", "lane", "length")
     schema = {name: pl.Float64 if name in numbers else pl.String for name in header}
@@ -358,10 +360,10 @@ def measure_ingest(plan: IngestPlan) -> Section:
             )
     features.notes.append(
         "- with / without: the median of each repeat's ratio (the two posted one right after "
-        "the other). parse + receive: the library's parse (orjson; polars as the fast path "
-        "reads) and the receive (POSTed as text/plain, refused once read) of the body with "
-        "features, less those of the body without; floor = 1 + that / the service's median "
-        "without features."
+        "the other). parse + receive: the library's parse (msgspec's typed decode; polars, as "
+        "the fast paths read) and the receive (POSTed as text/plain, refused once read) of the "
+        "body with features, less those of the body without; floor = 1 + that / the service's "
+        "median without features."
     )
     table.notes.append(
         "- Rates are of the median seconds; the ratio is plain limit seconds / service seconds."

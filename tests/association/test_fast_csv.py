@@ -1,6 +1,8 @@
 """The fast CSV path reads a plain, valid file exactly as the exact reader does, and declines
 (None) everything else, which the exact reader then reads (and names the problems of)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -146,15 +148,48 @@ def test_numbers_are_read_to_the_same_float_as_pythons(rows):
         assert_same(fast, exact(text))
 
 
-def test_the_byte_counts_read_by_chunks(monkeypatch):
+def test_the_exact_byte_count_reads_by_chunks(monkeypatch):
+    """A file with marks the one comparison counts (`!#$%&`) is counted again exactly, by
+    chunks, as a file past polars' 32-bit counts is: still read, and a short line still
+    declined."""
     from roadlink.association import fast_csv
 
     monkeypatch.setattr(fast_csv, "_CHUNK_BYTES", 16)
-    text = write_detections_csv(simulate(preset("small"), seed=5).detections)
+    monkeypatch.setattr(fast_csv, "_POLARS_MAX_BYTES", 1000)  # this file's counts too
+    detections = simulate(preset("small"), seed=5).detections
+    marked = detections.sensor_id.astype(str).astype(object) + "#!"
+    text = write_detections_csv(replace(detections, sensor_id=marked))
     assert_same(fast_detections(text.encode()), exact(text))
     lines = text.splitlines(keepends=True)
     short = "".join([*lines[:40], "0,20\n", *lines[40:]])
     assert fast_detections(short.encode()) is None
+
+
+@pytest.mark.parametrize("end", ["\n", "\r\n"])
+@pytest.mark.parametrize("cell", ["a#1", "b!", "$c", "d%&e", "'=A", 'x"y', "a b", "a\x1f"])
+def test_marks_up_to_the_quote_read_alike_and_quotes_and_blanks_are_declined(end, cell):
+    """The bytes up to `'` are counted as one: `!#$%&` (read alike by both readers) are told
+    apart from quotes and blanks (declined) after, with LF and CRLF line ends."""
+    rows = ["position,velocity,timestamp,sensor_id", f"0,20,1,{cell}", "100,20,6,b", ""]
+    text = end.join(rows)
+    fast = fast_detections(text.encode())
+    if any(c in cell for c in "'\" \x1f"):
+        assert fast is None
+    else:
+        assert_same(fast, exact(text))
+
+
+def test_text_codes_without_polars_categories_as_with(monkeypatch):
+    """Older polars (no `Categories`): the codes come from an Enum of the distinct values."""
+    import polars as pl
+
+    text = write_detections_csv(
+        simulate(preset("medium", lanes=3, vehicle_classes=True), seed=3).detections
+    )
+    with_categories = fast_detections(text.encode())
+    monkeypatch.delattr(pl, "Categories")
+    assert_same(fast_detections(text.encode()), exact(text))
+    assert_same(with_categories, exact(text))
 
 
 @pytest.mark.parametrize("where", [1, 5_000, 19_999])

@@ -13,7 +13,7 @@ from alembic import command
 from sqlalchemy import Engine, Uuid, column, delete, insert, table, text
 
 from roadlink.association.csvio import write_detections_csv
-from roadlink.association.detections import Detections, concatenate
+from roadlink.association.detections import COLUMNS, Detections, concatenate
 from roadlink.db import repository
 from roadlink.db.detection_blocks import Block, detections_of, encode
 from roadlink.db.engine import make_engine, make_session_factory
@@ -58,6 +58,15 @@ def test_a_batch_without_features_stores_only_its_columns() -> None:
     back = detections_of([block])
     assert back.features == () and len(back) == len(d)
     _same(back, d)
+
+
+def test_classes_reported_only_after_the_first_detection_are_stored() -> None:
+    d = simulate(preset("small"), seed=2).detections
+    classes = [None] * (len(d) - 1) + ["truck"]
+    with_class = Detections(*(getattr(d, name) for name in COLUMNS[:8]), np.array(classes))
+    block = Block.parse(encode(with_class))
+    assert block.texts("vehicle_class") == classes
+    assert Block.parse(encode(d)).offsets["vehicle_class"][1] == 0
 
 
 def test_masks_pick_rows_in_order_across_blocks_with_and_without_features() -> None:

@@ -21,6 +21,7 @@ from roadlink.api.errors import (
     problems_from_detections,
     validation_item,
 )
+from roadlink.api.json_detections import decode_rows, row_columns
 from roadlink.api.schemas import AssociateRequest
 from roadlink.association.csvio import FEATURE_COLUMNS, TooManyRows, read_csv_columns
 from roadlink.association.detections import DetectionError, Detections, Problem
@@ -49,7 +50,18 @@ def parse_json_batch(
     body: bytes, sensors: list[Sensor] | None, max_detections: int
 ) -> tuple[Detections, AssociateRequest | None]:
     """A JSON batch body into detections and the association it asks for (at most
-    `max_detections`, counted before any detection is validated)."""
+    `max_detections`, counted before any detection is validated).
+
+    A well-formed, valid body is read by the fast path (`json_detections`); any other is read
+    again by the exact path, which names every problem."""
+    fast = _fast_json_batch(body, sensors, max_detections)
+    return fast if fast is not None else _exact_json_batch(body, sensors, max_detections)
+
+
+def _exact_json_batch(
+    body: bytes, sensors: list[Sensor] | None, max_detections: int
+) -> tuple[Detections, AssociateRequest | None]:
+    """`parse_json_batch` by orjson and each column's types, naming every problem."""
     try:
         document = orjson.loads(body)
     except orjson.JSONDecodeError as exc:
@@ -84,6 +96,26 @@ def parse_json_batch(
             columns[name] = floats
     with_sensors = _fill_declared_sensors(columns, sensors, json_body=True)
     return validate_columns(with_sensors, "/detections"), associate
+
+
+def _fast_json_batch(
+    body: bytes, sensors: list[Sensor] | None, max_detections: int
+) -> tuple[Detections, AssociateRequest | None] | None:
+    """What the exact path makes of a body msgspec reads as rows of the documented types, or
+    None for any body the exact path must read (and refuse) itself."""
+    decoded = decode_rows(body)
+    if decoded is None:
+        return None
+    rows, raw_associate = decoded
+    if not rows or len(rows) > max_detections:
+        return None
+    try:
+        document = {} if raw_associate is None else {"associate": orjson.loads(raw_associate)}
+        associate = _Envelope.model_validate({"detections": [], **document}).associate
+        columns = _fill_declared_sensors(row_columns(rows), sensors, json_body=True)
+        return Detections.from_columns(**columns), associate
+    except (orjson.JSONDecodeError, ValidationError, ApiProblem, DetectionError):
+        return None
 
 
 def _envelope(document: Any) -> tuple[list[dict[str, Any]], AssociateRequest | None]:

@@ -48,12 +48,14 @@ def encode(detections: Detections) -> bytes:
     """The block of `detections` (validated, in upload order)."""
     d = detections
     # The classes' list is made once, for the flag and the text (`d.features` compares the
-    # object array to None element by element: several times as long).
+    # object array to None element by element: several times as long); counted only when the
+    # first reports none (a batch with classes most often has one in its first detection).
     classes = d.vehicle_class.tolist()
+    reported = bool(classes) and (classes[0] is not None or classes.count(None) < len(classes))
     flags = (
         (_LANE if bool(d.has_lane.any()) else 0)
         | (_LENGTH if not bool(np.isnan(d.length).all()) else 0)
-        | (_CLASS if classes.count(None) < len(classes) else 0)
+        | (_CLASS if reported else 0)
     )
     texts = [
         orjson.dumps(d.sensor_id.tolist()),
