@@ -49,6 +49,11 @@ def test_runs_are_where_each_key_occurs_in_order() -> None:
     assert len(found) == 7
     for k, where in enumerate(found):
         assert np.array_equal(where, np.flatnonzero(keys == k))
+    # Keys beyond 16 bits sort as they are.
+    keys = np.random.default_rng(1).integers(0, 3, size=200) * 40_000
+    found = runs(keys, np.bincount(keys))
+    for k, where in enumerate(found):
+        assert np.array_equal(where, np.flatnonzero(keys == k))
 
 
 def test_the_spread_about_the_median_is_centre_and_spreads() -> None:
