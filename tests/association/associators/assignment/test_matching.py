@@ -105,13 +105,23 @@ def test_each_batchs_augmented_graph_is_the_one_scipy_builds_from_its_entries():
 
 
 def test_unique_inverse_is_numpys_for_few_and_many_nodes():
-    from roadlink.association.associators.assignment.matching import SHORT_NODES, unique_inverse
+    from roadlink.association.associators.assignment.matching import (
+        NARROW_RANGE,
+        SHORT_NODES,
+        unique_inverse,
+    )
 
     rng = np.random.default_rng(5)
     for size in (0, 1, 7, SHORT_NODES, SHORT_NODES + 1, 5000):
-        nodes = rng.integers(0, max(1, size // 2), size=size)
-        unique, inverse = unique_inverse(nodes)
-        expected_unique, expected_inverse = np.unique(nodes, return_inverse=True)
-        assert np.array_equal(unique, expected_unique) and unique.dtype == expected_unique.dtype
-        assert np.array_equal(inverse, expected_inverse)
-        assert inverse.dtype == expected_inverse.dtype
+        # Ids in a narrow range (a table), a wide one (a sort), and at the table's limit.
+        for spread in (max(1, size // 2), 1000 * size + 1, NARROW_RANGE * size):
+            nodes = rng.integers(0, max(1, spread), size=size) + 10**6
+            nodes[:1] = 10**6
+            unique, inverse = unique_inverse(nodes)
+            expected_unique, expected_inverse = np.unique(nodes, return_inverse=True)
+            assert np.array_equal(unique, expected_unique)
+            assert unique.dtype == expected_unique.dtype
+            assert np.array_equal(inverse, expected_inverse)
+            assert inverse.dtype == expected_inverse.dtype
+    narrow = np.array([3, 9, 3, 5] * 20, dtype=np.int32)
+    assert unique_inverse(narrow)[0].dtype == np.int32
