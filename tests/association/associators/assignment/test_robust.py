@@ -22,6 +22,24 @@ def test_median_is_numpys_on_short_and_long_arrays(n: int) -> None:
     assert median(values.tolist()) == float(np.median(values))
 
 
+@pytest.mark.parametrize("n", [SHORT_ARRAY + 1, SHORT_ARRAY + 2, 1001, 20_000])
+def test_a_long_median_is_numpys_with_ties_and_nan(n: int) -> None:
+    rng = np.random.default_rng(n)
+    # Few distinct values (ties at the middle), then whole numbers and exact halves.
+    signed_zeros = np.where(rng.random(n) < 0.5, -0.0, 0.0) + np.where(rng.random(n) < 0.1, 1, 0)
+    for values in (
+        rng.integers(0, 3, n) * 0.1,
+        rng.integers(-5, 5, n) / 2.0,
+        np.round(rng.normal(size=n), 1),
+        signed_zeros,
+        rng.normal(size=n),
+    ):
+        assert median(values) == float(np.median(values))
+        assert np.signbit(median(values)) == np.signbit(np.median(values))
+    values[n // 3] = np.nan
+    assert np.isnan(median(values))
+
+
 def test_the_median_of_nothing_is_nan_as_numpys() -> None:
     with pytest.warns(RuntimeWarning):
         assert np.isnan(median([]))

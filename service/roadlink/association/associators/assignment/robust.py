@@ -14,13 +14,23 @@ MAD_TO_STD = 1.4826
 
 
 def median(values: npt.ArrayLike) -> float:
-    """np.median of a 1-D array, quick for short ones."""
+    """np.median of a 1-D array, the same number, quick for short ones and long ones."""
     array = np.asarray(values, dtype=np.float64).reshape(-1)
     n = array.size
-    if n == 0 or n > SHORT_ARRAY:
+    mid = n // 2
+    if n > SHORT_ARRAY:
+        # One partition at the middle (numpy's vectorised one takes a single index: a sixth
+        # of np.median's time, whose partition takes three), then the lower half's largest.
+        part = np.partition(array, mid)
+        middle = float(part[mid]) if n % 2 else float((part[:mid].max() + part[mid]) / 2.0)
+        # Which of several zeros (or NaNs) is the middle one depends on the partition: numpy's
+        # own answer there, with its sign of zero.
+        if middle == 0.0 or np.isnan(part[mid:]).any():
+            return float(np.median(array))
+        return middle
+    if n == 0:
         return float(np.median(array))
     ordered = sorted(array.tolist())
-    mid = n // 2
     return ordered[mid] if n % 2 else 0.5 * (ordered[mid - 1] + ordered[mid])
 
 
