@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from roadlink.association.associators.assignment import AssignmentParams, Tails
+from roadlink.association.associators.assignment import AssignmentParams, Tails, gating
 from roadlink.association.associators.assignment.gating import (
     EverySensor,
     Pairs,
@@ -155,3 +155,22 @@ def test_every_sensors_links_gated_at_once_are_those_gated_sensor_by_sensor(amon
         assert one.a.size > 0
         for name in ("a", "b", "r_time", "ratio", "speed_spread", "span"):
             assert np.array_equal(getattr(at_once, name), getattr(one, name))
+
+
+@pytest.mark.parametrize("among", [False, True])
+def test_links_gated_chunk_by_chunk_are_those_gated_at_once(
+    among: bool, monkeypatch: pytest.MonkeyPatch
+):
+    # To the last bit, in the same order: chunks of a few candidates, and of one departure's.
+    rng = np.random.default_rng(6)
+    s = arrange(three_sensors(rng, 300), PARAMS)
+    model = kinematic_model(3, PARAMS, tails=Tails(0.05, 4.0))
+    arrivals = rng.random(900) < 0.5 if among else None
+    a = rng.permutation(np.r_[s.members(1), s.members(0)])
+    whole = gated_pairs(s, model, PARAMS, a, 2, 2.0 * PARAMS.gate_cost, among=arrivals)
+    for chunk in (1, 7, 100):
+        monkeypatch.setattr(gating, "GATE_CHUNK", chunk)
+        chunked = gated_pairs(s, model, PARAMS, a, 2, 2.0 * PARAMS.gate_cost, among=arrivals)
+        assert whole.a.size > 100
+        for name in ("a", "b", "r_time", "ratio", "speed_spread", "span"):
+            assert np.array_equal(getattr(chunked, name), getattr(whole, name))

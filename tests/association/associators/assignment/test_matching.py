@@ -39,9 +39,12 @@ def test_sparse_matching_terminates_on_a_block_that_made_lapjvsp_cycle():
     data = Path(__file__).parents[3] / "data" / "lapjvsp_cycle.npz"
     script = (
         "import numpy as np, sys\n"
-        "from roadlink.association.associators.assignment.matching import _match_block\n"
+        "from roadlink.association.associators.assignment.matching import _match_batches\n"
         "z = np.load(sys.argv[1])\n"
-        "left, right = _match_block(z['left'], z['right'], z['cost'], float(z['alone']))\n"
+        "li = np.unique(z['left'], return_inverse=True)[1]\n"
+        "ri = np.unique(z['right'], return_inverse=True)[1]\n"
+        "whole = np.arange(li.size), np.array([0, li.size])\n"
+        "(left,), (right,) = _match_batches(li, ri, z['cost'], float(z['alone']), *whole)\n"
         "print(left.size, np.unique(left).size, np.unique(right).size)\n"
     )
     run = subprocess.run(
@@ -52,39 +55,73 @@ def test_sparse_matching_terminates_on_a_block_that_made_lapjvsp_cycle():
     assert matched == distinct_left == distinct_right > 100  # one-to-one, and most nodes matched
 
 
-def test_the_augmented_graph_is_the_one_scipy_builds_from_its_entries():
+def _scipys_augmented(li, ri, cost, alone, n_l, n_r):
+    """The graph of one batch as scipy builds it from its entries (an edge given twice summed)."""
     from scipy.sparse import csr_matrix
 
-    from roadlink.association.associators.assignment.matching import _augmented
+    rows = np.concatenate([li, np.arange(n_l), n_l + np.arange(n_r), n_l + ri])
+    cols = np.concatenate([ri, n_r + np.arange(n_l), np.arange(n_r), n_r + li])
+    weights = np.concatenate([cost, np.full(n_l + n_r, alone), np.zeros(li.size)])
+    weights = np.round(weights * 1024.0) / 1024.0
+    weights += 1.0 - min(0.0, float(weights.min(initial=0.0)))
+    expected = csr_matrix((weights, (rows, cols)), shape=(n_l + n_r, n_r + n_l))
+    expected.sum_duplicates()
+    return expected
+
+
+def test_each_batchs_augmented_graph_is_the_one_scipy_builds_from_its_entries():
+    from roadlink.association.associators.assignment.matching import AugmentedBatches
 
     rng = np.random.default_rng(4)
-    for n_l, n_r, n_edges, repeat in ((30, 25, 60, False), (5, 7, 1, False), (12, 9, 40, True)):
-        li = rng.integers(0, n_l, n_edges)
-        ri = rng.integers(0, n_r, n_edges)
+    for n_batches, repeat in ((1, False), (4, False), (1, True), (3, True)):
+        # Batch k's nodes are the ids k mod n_batches: the batches' nodes interleave.
+        local_l = rng.integers(0, 30, 60 * n_batches)
+        local_r = rng.integers(0, 25, local_l.size)
+        batch = rng.integers(0, n_batches, local_l.size)
+        _, once = np.unique(np.c_[local_l, local_r, batch], axis=0, return_index=True)
+        assert once.size < local_l.size  # some edge given twice
         if not repeat:
-            li, ri = np.divmod(np.unique(li * n_r + ri), n_r)
+            local_l, local_r, batch = local_l[once], local_r[once], batch[once]
+        li = np.unique(local_l * n_batches + batch, return_inverse=True)[1]
+        ri = np.unique(local_r * n_batches + batch, return_inverse=True)[1]
         cost = rng.normal(5.0, 4.0, li.size)
-        rows = np.concatenate([li, np.arange(n_l), n_l + np.arange(n_r), n_l + ri])
-        cols = np.concatenate([ri, n_r + np.arange(n_l), np.arange(n_r), n_r + li])
-        weights = np.concatenate([cost, np.full(n_l + n_r, 9.0), np.zeros(li.size)])
-        weights = np.round(weights * 1024.0) / 1024.0
-        weights += 1.0 - min(0.0, float(weights.min(initial=0.0)))
-        expected = csr_matrix((weights, (rows, cols)), shape=(n_l + n_r, n_r + n_l))
-        expected.sum_duplicates()
-        built = _augmented(li, ri, cost, 9.0, n_l, n_r)
-        assert built.has_canonical_format or repeat
-        for name in ("indptr", "indices", "data"):
-            assert np.array_equal(getattr(built, name), getattr(expected, name))
+        order = np.argsort(batch, kind="stable")
+        cuts = np.searchsorted(batch[order], np.arange(n_batches + 1))
+        built = AugmentedBatches.of(li, ri, cost, 9.0, order, cuts)
+        for k in range(n_batches):
+            edges = order[cuts[k] : cuts[k + 1]]
+            lefts, bl = np.unique(li[edges], return_inverse=True)
+            rights, br = np.unique(ri[edges], return_inverse=True)
+            expected = _scipys_augmented(bl, br, cost[edges], 9.0, lefts.size, rights.size)
+            graph = built.graph(k)
+            assert graph.has_canonical_format or repeat
+            assert np.array_equal(built.lefts[built.left_start[k] : built.left_start[k + 1]], lefts)
+            assert np.array_equal(
+                built.rights[built.right_start[k] : built.right_start[k + 1]], rights
+            )
+            assert graph.shape == expected.shape
+            for name in ("indptr", "indices", "data"):
+                assert np.array_equal(getattr(graph, name), getattr(expected, name))
 
 
 def test_unique_inverse_is_numpys_for_few_and_many_nodes():
-    from roadlink.association.associators.assignment.matching import SHORT_NODES, unique_inverse
+    from roadlink.association.associators.assignment.matching import (
+        NARROW_RANGE,
+        SHORT_NODES,
+        unique_inverse,
+    )
 
     rng = np.random.default_rng(5)
     for size in (0, 1, 7, SHORT_NODES, SHORT_NODES + 1, 5000):
-        nodes = rng.integers(0, max(1, size // 2), size=size)
-        unique, inverse = unique_inverse(nodes)
-        expected_unique, expected_inverse = np.unique(nodes, return_inverse=True)
-        assert np.array_equal(unique, expected_unique) and unique.dtype == expected_unique.dtype
-        assert np.array_equal(inverse, expected_inverse)
-        assert inverse.dtype == expected_inverse.dtype
+        # Ids in a narrow range (a table), a wide one (a sort), and at the table's limit.
+        for spread in (max(1, size // 2), 1000 * size + 1, NARROW_RANGE * size):
+            nodes = rng.integers(0, max(1, spread), size=size) + 10**6
+            nodes[:1] = 10**6
+            unique, inverse = unique_inverse(nodes)
+            expected_unique, expected_inverse = np.unique(nodes, return_inverse=True)
+            assert np.array_equal(unique, expected_unique)
+            assert unique.dtype == expected_unique.dtype
+            assert np.array_equal(inverse, expected_inverse)
+            assert inverse.dtype == expected_inverse.dtype
+    narrow = np.array([3, 9, 3, 5] * 20, dtype=np.int32)
+    assert unique_inverse(narrow)[0].dtype == np.int32

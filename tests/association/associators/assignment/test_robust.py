@@ -22,6 +22,24 @@ def test_median_is_numpys_on_short_and_long_arrays(n: int) -> None:
     assert median(values.tolist()) == float(np.median(values))
 
 
+@pytest.mark.parametrize("n", [SHORT_ARRAY + 1, SHORT_ARRAY + 2, 1001, 20_000])
+def test_a_long_median_is_numpys_with_ties_and_nan(n: int) -> None:
+    rng = np.random.default_rng(n)
+    # Few distinct values (ties at the middle), then whole numbers and exact halves.
+    signed_zeros = np.where(rng.random(n) < 0.5, -0.0, 0.0) + np.where(rng.random(n) < 0.1, 1, 0)
+    for values in (
+        rng.integers(0, 3, n) * 0.1,
+        rng.integers(-5, 5, n) / 2.0,
+        np.round(rng.normal(size=n), 1),
+        signed_zeros,
+        rng.normal(size=n),
+    ):
+        assert median(values) == float(np.median(values))
+        assert np.signbit(median(values)) == np.signbit(np.median(values))
+    values[n // 3] = np.nan
+    assert np.isnan(median(values))
+
+
 def test_the_median_of_nothing_is_nan_as_numpys() -> None:
     with pytest.warns(RuntimeWarning):
         assert np.isnan(median([]))
@@ -47,6 +65,11 @@ def test_runs_are_where_each_key_occurs_in_order() -> None:
     keys[keys == 4] = 5  # a key that never occurs
     found = runs(keys, np.bincount(keys, minlength=7))
     assert len(found) == 7
+    for k, where in enumerate(found):
+        assert np.array_equal(where, np.flatnonzero(keys == k))
+    # Keys beyond 16 bits sort as they are.
+    keys = np.random.default_rng(1).integers(0, 3, size=200) * 40_000
+    found = runs(keys, np.bincount(keys))
     for k, where in enumerate(found):
         assert np.array_equal(where, np.flatnonzero(keys == k))
 

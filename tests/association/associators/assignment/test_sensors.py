@@ -46,3 +46,21 @@ def test_the_typical_travel_time_is_between_neighbours_at_their_median_speeds():
     assert s.typical_travel_time() == pytest.approx(12.5)
     one = arrange(Detections.from_columns([0.0], [10.0], [0.0]), AssignmentParams())
     assert one.typical_travel_time() is None
+
+
+def test_detections_by_track_are_in_lexsorts_order():
+    rng = np.random.default_rng(2)
+    n_sensors, n_tracks = 7, 40
+    # Each track holds at most one detection per sensor.
+    cells = rng.choice(n_sensors * n_tracks, size=150, replace=False)
+    sensor, track_of = cells % n_sensors, cells // n_sensors
+    detections = Detections.from_columns(
+        position=100.0 * sensor,
+        velocity=np.full(cells.size, 30.0),
+        timestamp=rng.random(cells.size),
+    )
+    s = arrange(detections, AssignmentParams())
+    track = np.where(rng.random(cells.size) < 0.8, track_of, -1)
+    assigned = np.flatnonzero(track >= 0)
+    expected = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
+    assert np.array_equal(s.by_track(assigned, track), expected)

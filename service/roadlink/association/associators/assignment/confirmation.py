@@ -43,7 +43,7 @@ def confirm_targets(
     assigned = np.flatnonzero(track >= 0)
     if assigned.size == 0:
         return out
-    chain = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
+    chain = s.by_track(assigned, track)
     ids = track[chain]
     start = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
     end = np.r_[start[1:], chain.size] - 1

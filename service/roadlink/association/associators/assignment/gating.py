@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -135,6 +136,14 @@ class Departures:
             model.speed_spread[p, span],
         )
 
+    def part(self, lo: int, hi: int) -> Departures:
+        """Departures lo to hi."""
+        return Departures(*(getattr(self, field.name)[lo:hi] for field in fields(self)))
+
+
+# Candidates gated at once: their dozen temporary arrays stay in a core's cache (a call at 10^6
+# detections has about 150,000, 1.2 MB an array).
+GATE_CHUNK = 16384
 
 # Up to this many detections per sensor, the links into every sensor are gated in one pass
 # (`EverySensor`): on a paper-size batch (10 a sensor) numpy's fixed cost per call, not the
@@ -171,6 +180,12 @@ def gated_pairs(
     inverse_q = s.sorted_inverse_speed[lo_index:hi_index]
     fastest, slowest = float(inverse_q.min()), float(inverse_q.max())
     lo, hi = _arrival_window(s, model, params, d, q, gate, fastest, slowest)
+    if among is None:
+        # Sensor q's places are one run: a candidate's place is its rank beyond the run's first.
+        times = s.sorted_time[lo_index:hi_index]
+        first = np.searchsorted(times, lo, side="left")
+        count = np.maximum(np.searchsorted(times, hi, side="right") - first, 0)
+        return _within_gate(s, model, params, d, None, first + lo_index, count, gate)
     times = s.sorted_time[slot]
     first = np.searchsorted(times, lo, side="left")
     count = np.maximum(np.searchsorted(times, hi, side="right") - first, 0)
@@ -182,27 +197,57 @@ def _within_gate(
     model: SegmentModel,
     params: AssignmentParams,
     d: Departures,
-    slot: IntArray,
+    slot: IntArray | None,
     first: IntArray,
     count: IntArray,
     gate: float,
 ) -> Pairs:
-    """The links from each of d's departures to `count` places of `slot` (places in s.order)
-    from its `first` on, those whose travel time alone is within the gate."""
+    """The links from each of d's departures to `count` places of `slot` (places in s.order;
+    None: the places themselves) from its `first` on, those whose travel time alone is within
+    the gate: GATE_CHUNK candidates at a time (or the departures of one that has more)."""
+    ends = np.cumsum(count)
+    if ends.size == 0 or ends[-1] <= GATE_CHUNK:
+        return _within_gate_chunk(s, model, params, d, slot, first, count, gate)
+    cuts = np.searchsorted(ends, np.arange(GATE_CHUNK, ends[-1], GATE_CHUNK), side="right")
+    cuts = np.unique(np.concatenate([[0], cuts, [ends.size]]))
+    return Pairs.concatenate(
+        [
+            _within_gate_chunk(
+                s, model, params, d.part(lo, hi), slot, first[lo:hi], count[lo:hi], gate
+            )
+            for lo, hi in itertools.pairwise(cuts.tolist())
+        ]
+    )
+
+
+def _within_gate_chunk(
+    s: Sensors,
+    model: SegmentModel,
+    params: AssignmentParams,
+    d: Departures,
+    slot: IntArray | None,
+    first: IntArray,
+    count: IntArray,
+    gate: float,
+) -> Pairs:
+    """`_within_gate` of one chunk."""
     which = np.repeat(np.arange(d.a.size), count)  # the departure of every candidate
-    local = np.repeat(first - (np.cumsum(count) - count), count)
-    local += np.arange(which.size)
-    at = slot[local]
-    predicted = d.to_b[which]
+    at = np.repeat(first - (np.cumsum(count) - count), count)
+    at += np.arange(which.size)
+    if slot is not None:
+        at = slot[at]
+    # A departure's numbers repeated for each of its candidates (np.repeat: quicker than
+    # indexing by `which`, the same numbers).
+    predicted = np.repeat(d.to_b, count)
     predicted *= s.sorted_inverse_speed[at]
-    np.add(d.from_a[which], predicted, out=predicted)
+    np.add(np.repeat(d.from_a, count), predicted, out=predicted)
     travel = s.sorted_time[at]
-    travel -= s.time[d.a][which]
+    travel -= np.repeat(s.time[d.a], count)
     ratio = s.sorted_log_speed[at]
-    ratio -= d.centre[which]
-    variance = d.time_spread * d.time_spread
-    r_time = standardised(params, predicted, travel, ratio, variance[which])
-    keep = model.time_tails.within(r_time, d.span[which], params.miss_cost, gate)
+    ratio -= np.repeat(d.centre, count)
+    variance = np.repeat(d.time_spread * d.time_spread, count)
+    r_time = standardised(params, predicted, travel, ratio, variance)
+    keep = model.time_tails.within(r_time, np.repeat(d.span, count), params.miss_cost, gate)
     kept = which[keep]
     return Pairs(
         d.a[kept],
@@ -279,7 +324,7 @@ class EverySensor:
             count[towards] = np.maximum(
                 np.searchsorted(times, hi[towards], side="right") - start, 0
             )
-        pairs = _within_gate(s, model, params, d, np.arange(n), first, count, gate)
+        pairs = _within_gate(s, model, params, d, None, first, count, gate)
         return cls(pairs, np.searchsorted(s.sensor[pairs.b], np.arange(n_sensors + 1)), n)
 
     def into(self, q: int, a: IntArray, among: BoolArray | None = None) -> Pairs:

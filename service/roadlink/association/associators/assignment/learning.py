@@ -49,7 +49,7 @@ def learn_segments(
     model = prior.copy()
     confident = confident_detections(track)
     # Detections of a track in road order: sort by (track, sensor).
-    chain = confident[np.lexsort((s.sensor[confident], track[confident]))]
+    chain = s.by_track(confident, track)
     links: list[Links] = []
     for span in range(1, model.max_span + 1):
         a, b = span_links(s, track, chain, span)
@@ -108,7 +108,8 @@ def learn_span(
     skew = np.full(s.positions.size, KINEMATIC_SKEW)
     segment = runs(p, counts)
     for k in np.flatnonzero(counts):
-        here = segment[k]
+        # best_skew's own even sample, taken before the gathers (it then samples no further).
+        here = segment[k][:: max(1, segment[k].size // SKEW_SAMPLE)]
         learned = best_skew(dt[here], dx[here], s.speed[a[here]], s.speed[b[here]])
         skew[k] = KINEMATIC_SKEW + weight[k] * (learned - KINEMATIC_SKEW)
     model.skew[:, span] = skew

@@ -5,7 +5,7 @@ A generic solver: it knows edges and their costs, nothing of detections or track
 
 from __future__ import annotations
 
-import itertools
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -26,13 +26,25 @@ BATCH_EDGES = 2000  # edges per sparse assignment: small enough to stay linear, 
 COST_QUANTUM_INVERSE = 1024.0  # sparse matching's costs are whole multiples of its inverse
 DENSE_NODES = 120  # below this many nodes one dense assignment beats sparse bookkeeping
 SHORT_NODES = 64  # up to this many node ids, Python's set and dict beat numpy's unique
+NARROW_RANGE = 4  # ids spanning under this many times their number: a table beats a sort
 
 
 def unique_inverse(nodes: Nodes) -> tuple[Nodes, Nodes]:
-    """np.unique(nodes, return_inverse=True) of node ids, the same arrays; quick for a few."""
+    """np.unique(nodes, return_inverse=True) of node ids, the same arrays; quick for a few, and
+    for many within a narrow range (a sensor's neighbours' detections, when the ids follow
+    the road): marked in a table of the range instead of sorted."""
     if nodes.size > SHORT_NODES:
-        unique, inverse = np.unique(nodes, return_inverse=True)
-        return unique, inverse
+        lo, hi = int(nodes.min()), int(nodes.max())
+        if hi - lo >= NARROW_RANGE * nodes.size:
+            unique, inverse = np.unique(nodes, return_inverse=True)
+            return unique, inverse
+        shifted = nodes - lo
+        present = np.zeros(hi - lo + 1, dtype=bool)
+        present[shifted] = True
+        unique = np.flatnonzero(present).astype(nodes.dtype)
+        unique += lo
+        rank = np.cumsum(present) - 1
+        return unique, rank[shifted]
     ids = nodes.tolist()
     distinct = sorted(set(ids))
     where = {node: k for k, node in enumerate(distinct)}
@@ -76,32 +88,30 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     edge_part = part[li]
     edges_in_part = np.bincount(edge_part, minlength=n_parts)
     alone = edges_in_part[edge_part] == 1
-    taken_l = [li[alone]]
-    taken_r = [ri[alone]]
-    for block in _component_batches(np.flatnonzero(~alone), edge_part, edges_in_part):
-        bl, br = _match_block(li[block], ri[block], cost[block], gate / 2.0)
-        taken_l.append(bl)
-        taken_r.append(br)
-    return lu[np.concatenate(taken_l)], ru[np.concatenate(taken_r)]
+    order, cuts = _component_batches(np.flatnonzero(~alone), edge_part, edges_in_part)
+    taken_l, taken_r = _match_batches(li, ri, cost, gate / 2.0, order, cuts)
+    return lu[np.concatenate([li[alone], *taken_l])], ru[np.concatenate([ri[alone], *taken_r])]
 
 
-def _component_batches(shared: Nodes, edge_part: Nodes, edges_in_part: Nodes) -> list[Nodes]:
-    """The edges `shared` in batches of whole components, about BATCH_EDGES edges each."""
+def _component_batches(
+    shared: Nodes, edge_part: Nodes, edges_in_part: Nodes
+) -> tuple[Nodes, Nodes]:
+    """The edges `shared` in batches of whole components, about BATCH_EDGES edges each: the
+    edges by component, and where each batch starts (and the last ends) among them."""
     if shared.size == 0:
-        return []
+        return shared, np.zeros(1, dtype=np.int64)
     order = shared[np.argsort(edge_part[shared], kind="stable")]
     parts = edge_part[order]
     boundary = np.flatnonzero(np.r_[True, parts[1:] != parts[:-1]])
     batch_of_part = np.cumsum(edges_in_part[parts[boundary]]) // BATCH_EDGES
     batch = np.repeat(batch_of_part, np.diff(np.r_[boundary, order.size]))
-    cuts = np.flatnonzero(np.r_[True, batch[1:] != batch[:-1], True])
-    return [order[lo:hi] for lo, hi in itertools.pairwise(cuts)]
+    return order, np.flatnonzero(np.r_[True, batch[1:] != batch[:-1], True])
 
 
 def _match_dense(
     li: Nodes, ri: Nodes, cost: Costs, alone: float, n_l: int, n_r: int
 ) -> tuple[Nodes, Nodes]:
-    """The same matching as `_match_block`, as one dense square assignment, for small problems
+    """The same matching as `_match_batches`, as one dense square assignment, for small problems
     (a paper-sized batch): building sparse graphs and their components costs far more there.
 
     Rows are the lefts, then one dummy per right; columns the rights, then one dummy per left. A
@@ -120,78 +130,182 @@ def _match_dense(
     return row[real], col[real]
 
 
-def _match_block(left: Nodes, right: Nodes, cost: Costs, alone: float) -> tuple[Nodes, Nodes]:
-    """Exact min-cost matching of some edges, each node free to stay unmatched at cost `alone`.
+def _match_batches(
+    li: Nodes, ri: Nodes, cost: Costs, alone: float, order: Nodes, cuts: Nodes
+) -> tuple[list[Nodes], list[Nodes]]:
+    """Exact min-cost matching of each batch of edges (`order[cuts[k]:cuts[k + 1]]`, no node in
+    two batches), each node free to stay unmatched at cost `alone`: the lefts and rights taken,
+    batch by batch, each batch's by left.
 
-    Sparse LAPJVsp on the graph augmented with one dummy node per real node: left l may match its
-    own dummy (stay alone), right r may match its own dummy, and dummies match each other along
-    every real edge so a full matching always exists.
+    Sparse LAPJVsp, one call per batch, on the graph `AugmentedBatches` describes.
     """
-    lu, li = unique_inverse(left)
-    ru, ri = unique_inverse(right)
-    graph = _augmented(li, ri, cost, alone, lu.size, ru.size)
     from scipy.sparse.csgraph import min_weight_full_bipartite_matching  # as in `match`
 
-    row, col = min_weight_full_bipartite_matching(graph)
-    real = (row < lu.size) & (col < ru.size)
-    return lu[row[real]], ru[col[real]]
+    taken_l: list[Nodes] = []
+    taken_r: list[Nodes] = []
+    if cuts.size == 1:
+        return taken_l, taken_r
+    batches = AugmentedBatches.of(li, ri, cost, alone, order, cuts)
+    for k in range(cuts.size - 1):
+        n_l, n_r = batches.sizes(k)
+        row, col = min_weight_full_bipartite_matching(batches.graph(k))
+        real = (row < n_l) & (col < n_r)
+        taken_l.append(batches.lefts[batches.left_start[k] + row[real]])
+        taken_r.append(batches.rights[batches.right_start[k] + col[real]])
+    return taken_l, taken_r
 
 
-def _augmented(li: Nodes, ri: Nodes, cost: Costs, alone: float, n_l: int, n_r: int) -> csr_matrix:
-    """The graph `_match_block` solves, in canonical CSR form (each row's columns ascending),
-    built directly: scipy's general COO -> CSR conversion and index sort cost more than the
-    matching itself on the small blocks the associator has.
+@dataclass(frozen=True)
+class AugmentedBatches:
+    """The graph `_match_batches` solves for each batch of edges, all built at once, in canonical
+    CSR form (each row's columns ascending): a batch's own arrays are slices of these. Built
+    directly: scipy's general COO -> CSR conversion and index sort, batch by batch, cost more
+    than the matching itself on the small batches the associator has.
 
-    Rows: real lefts [0, n_l), dummies of rights [n_l, n_l + n_r). Columns: real rights
-    [0, n_r), dummies of lefts [n_r, n_r + n_l). Real left l: its edges (by right), then its
-    own dummy n_r + l at cost `alone`; dummy of right r: r itself at `alone`, then the dummies
-    of r's lefts (by left) at 0, so a full matching always exists.
+    A batch's nodes are numbered by their ids, ascending. Its rows: real lefts [0, n_l), dummies
+    of rights [n_l, n_l + n_r); columns: real rights [0, n_r), dummies of lefts [n_r, n_r + n_l).
+    Real left l: its edges (by right), then its own dummy n_r + l at cost `alone`; dummy of
+    right r: r itself at `alone`, then the dummies of r's lefts (by left) at 0, so a full
+    matching always exists. Here the batches' rows follow one another, batch by batch.
     """
-    from scipy.sparse import csr_matrix  # on first use, as in `match`
 
-    # All weights rounded to whole multiples of 2^-10, so that every sum LAPJVsp forms is
-    # exact: with arbitrary floats its rounding errors can make it cycle forever (seen on a
-    # dense block of SUMO traffic; tests/data/lapjvsp_cycle.npz). The rounding changes costs by
-    # < 0.001. Then shifted to at least +1: LAPJVsp needs non-zero weights, and a full matching
-    # has a fixed number of edges, so the shift changes nothing. (Costs are negative only where
-    # detector features make a link more likely than not.)
-    edge = np.round(cost * COST_QUANTUM_INVERSE) / COST_QUANTUM_INVERSE
-    single = float(np.round(alone * COST_QUANTUM_INVERSE) / COST_QUANTUM_INVERSE)
-    lowest = min(0.0, single, float(edge.min(initial=0.0)))
-    shift = 1.0 - lowest
-    n_edges = li.size
-    by_left = np.argsort(li * n_r + ri)  # by left, then right
-    if np.any(np.diff((li * n_r + ri)[by_left]) == 0):
-        # An edge given twice: as scipy's conversion would, sum the two.
-        rows = np.concatenate([li, np.arange(n_l), n_l + np.arange(n_r), n_l + ri])
-        cols = np.concatenate([ri, n_r + np.arange(n_l), np.arange(n_r), n_r + li])
-        weights = np.concatenate([edge, np.full(n_l + n_r, single), np.zeros(n_edges)]) + shift
-        graph = csr_matrix((weights, (rows, cols)), shape=(n_l + n_r, n_r + n_l))
-        graph.sum_duplicates()
-        return graph
-    degree_l = np.bincount(li, minlength=n_l)
-    degree_r = np.bincount(ri, minlength=n_r)
-    indptr = np.zeros(n_l + n_r + 1, dtype=np.int64)
-    np.cumsum(np.concatenate([degree_l, degree_r]) + 1, out=indptr[1:])
+    lefts: Nodes  # every batch's left nodes, batch by batch, each batch's ascending
+    rights: Nodes
+    left_start: Nodes  # batch k's lefts are lefts[left_start[k]:left_start[k + 1]]
+    right_start: Nodes
+    indptr: Nodes
+    indices: Nodes
+    data: Costs
+
+    def sizes(self, k: int) -> tuple[int, int]:
+        """Batch k's numbers of lefts and rights."""
+        return (
+            int(self.left_start[k + 1] - self.left_start[k]),
+            int(self.right_start[k + 1] - self.right_start[k]),
+        )
+
+    def graph(self, k: int) -> csr_matrix:
+        """Batch k's graph."""
+        from scipy.sparse import csr_matrix  # on first use, as in `match`
+
+        n_l, n_r = self.sizes(k)
+        first = int(self.left_start[k] + self.right_start[k])
+        rows = self.indptr[first : first + n_l + n_r + 1]
+        lo, hi = int(rows[0]), int(rows[-1])
+        arrays = (self.data[lo:hi], self.indices[lo:hi] - first, rows - lo)
+        return csr_matrix(arrays, shape=(n_l + n_r, n_r + n_l))
+
+    @classmethod
+    def of(
+        cls, li: Nodes, ri: Nodes, cost: Costs, alone: float, order: Nodes, cuts: Nodes
+    ) -> AugmentedBatches:
+        """The graphs of the batches of edges `order[cuts[k]:cuts[k + 1]]` (left li, right ri,
+        compact ids), each node free to stay alone at cost `alone`."""
+        n_batches = cuts.size - 1
+        batch = np.repeat(np.arange(n_batches), np.diff(cuts))
+        lefts, left_start, left_at = _batch_nodes(li[order], batch, n_batches)
+        rights, right_start, right_at = _batch_nodes(ri[order], batch, n_batches)
+        # All weights rounded to whole multiples of 2^-10, so that every sum LAPJVsp forms is
+        # exact: with arbitrary floats its rounding errors can make it cycle forever (seen on a
+        # dense block of SUMO traffic; tests/data/lapjvsp_cycle.npz). The rounding changes
+        # costs by < 0.001. Then shifted, batch by batch, to at least +1: LAPJVsp needs
+        # non-zero weights, and a full matching has a fixed number of edges, so the shift
+        # changes nothing. (Costs are negative only where detector features make a link more
+        # likely than not.)
+        edge = np.round(cost[order] * COST_QUANTUM_INVERSE) / COST_QUANTUM_INVERSE
+        single = float(np.round(alone * COST_QUANTUM_INVERSE) / COST_QUANTUM_INVERSE)
+        shift = 1.0 - np.minimum(np.minimum.reduceat(edge, cuts[:-1]), min(0.0, single))
+        # Batch k's rows (and columns) follow those of the batches before it, k's lefts' rows
+        # (rights' columns) first, then its rights' dummies' rows (lefts' dummies' columns).
+        left_batch = np.repeat(np.arange(n_batches), np.diff(left_start))
+        right_batch = np.repeat(np.arange(n_batches), np.diff(right_start))
+        left_row = np.arange(lefts.size) + right_start[left_batch]
+        dummy_col = np.arange(lefts.size) + right_start[left_batch + 1]  # a left's own dummy
+        right_col = np.arange(rights.size) + left_start[right_batch]
+        dummy_row = np.arange(rights.size) + left_start[right_batch + 1]  # a right's own dummy
+        entries = (
+            (left_row[left_at], right_col[right_at], edge + shift[batch]),
+            (left_row, dummy_col, single + shift[left_batch]),
+            (dummy_row, right_col, single + shift[right_batch]),
+            (dummy_row[right_at], dummy_col[left_at], 0.0 + shift[batch]),
+        )
+        by_left = np.argsort(left_at * rights.size + right_at)  # by left, then right
+        if np.any(np.diff((left_at * rights.size + right_at)[by_left]) == 0):
+            arrays = _summed(entries, lefts.size + rights.size)
+        else:
+            arrays = _canonical(entries, (left_at, right_at), by_left)
+        return cls(lefts, rights, left_start, right_start, *arrays)
+
+
+def _batch_nodes(nodes: Nodes, batch: Nodes, n_batches: int) -> tuple[Nodes, Nodes, Nodes]:
+    """The distinct `nodes` (compact ids, each in one batch) of each batch, batch by batch, each
+    batch's ascending; where each batch starts among them (and the last ends); and the place
+    of each of `nodes` among them."""
+    batch_of = np.full(int(nodes.max(initial=-1)) + 1, -1)
+    batch_of[nodes] = batch
+    distinct = np.flatnonzero(batch_of >= 0)
+    distinct = distinct[np.argsort(batch_of[distinct], kind="stable")]
+    place = np.empty(batch_of.size, dtype=np.int64)
+    place[distinct] = np.arange(distinct.size)
+    start = np.searchsorted(batch_of[distinct], np.arange(n_batches + 1))
+    return distinct, start, place[nodes]
+
+
+Entries = tuple[Nodes, Nodes, Costs]
+
+
+def _canonical(
+    entries: tuple[Entries, Entries, Entries, Entries],
+    ends: tuple[Nodes, Nodes],
+    by_left: Nodes,
+) -> tuple[Nodes, Nodes, Costs]:
+    """`AugmentedBatches`' (indptr, indices, data), given its entries (the edges, the lefts'
+    dummies, the rights' dummies, the dummies' edges) and the place of each edge's left and
+    right among the lefts and rights (`ends`, edges given once, `by_left` sorting them)."""
+    (edge_row, edge_col, edge_w), (left_row, dummy_col, left_w) = entries[:2]
+    (dummy_row, right_col, right_w), (_, dummy_edge_col, dummy_edge_w) = entries[2:]
+    left_at, right_at = ends
+    n_edges = left_at.size
+    degree_l = np.bincount(left_at, minlength=left_row.size)
+    degree_r = np.bincount(right_at, minlength=dummy_row.size)
+    size = np.empty(left_row.size + dummy_row.size, dtype=np.int64)
+    size[left_row] = degree_l + 1
+    size[dummy_row] = degree_r + 1
+    indptr = np.zeros(size.size + 1, dtype=np.int64)
+    np.cumsum(size, out=indptr[1:])
     indices = np.empty(indptr[-1], dtype=np.int64)
     data = np.empty(indptr[-1])
-    # A row's k-th entry sits at indptr[row] + k; its edges come in sorted order.
-    rank = np.arange(n_edges) - (np.cumsum(degree_l) - degree_l)[li[by_left]]
-    at = indptr[li[by_left]] + rank
-    indices[at] = ri[by_left]
-    data[at] = edge[by_left] + shift
-    own = indptr[1 : n_l + 1] - 1
-    indices[own] = n_r + np.arange(n_l)
-    data[own] = single + shift
-    by_right = np.argsort(ri * n_l + li)  # by right, then left
-    rank = np.arange(n_edges) - (np.cumsum(degree_r) - degree_r)[ri[by_right]]
-    start = indptr[n_l + ri[by_right]]
-    indices[start + 1 + rank] = n_r + li[by_right]
-    data[start + 1 + rank] = 0.0 + shift
-    first = indptr[n_l : n_l + n_r]
-    indices[first] = np.arange(n_r)
-    data[first] = single + shift
-    return csr_matrix((data, indices, indptr), shape=(n_l + n_r, n_r + n_l))
+    # A left's row: its edges by right, then its own dummy; a right's dummy's row: the right
+    # itself, then its lefts' dummies by left. A row's k-th entry sits at indptr[row] + k.
+    rank = np.arange(n_edges) - (np.cumsum(degree_l) - degree_l)[left_at[by_left]]
+    at = indptr[edge_row[by_left]] + rank
+    indices[at] = edge_col[by_left]
+    data[at] = edge_w[by_left]
+    own = indptr[left_row + 1] - 1
+    indices[own] = dummy_col
+    data[own] = left_w
+    first = indptr[dummy_row]
+    indices[first] = right_col
+    data[first] = right_w
+    by_right = np.argsort(right_at * left_row.size + left_at)  # by right, then left
+    rank = np.arange(n_edges) - (np.cumsum(degree_r) - degree_r)[right_at[by_right]]
+    at = first[right_at[by_right]] + 1 + rank
+    indices[at] = dummy_edge_col[by_right]
+    data[at] = dummy_edge_w[by_right]
+    return indptr, indices, data
+
+
+def _summed(
+    entries: tuple[Entries, Entries, Entries, Entries], n_rows: int
+) -> tuple[Nodes, Nodes, Costs]:
+    """`AugmentedBatches`' arrays where an edge is given twice: as scipy's conversion would, the
+    two summed."""
+    from scipy.sparse import csr_matrix  # on first use, as in `match`
+
+    rows, cols, weights = (np.concatenate(column) for column in zip(*entries, strict=True))
+    graph = csr_matrix((weights, (rows, cols)), shape=(n_rows, n_rows))
+    graph.sum_duplicates()
+    return graph.indptr, graph.indices, graph.data
 
 
 def chosen_marginals(left: Nodes, right: Nodes, cost: Costs, chosen: Mask, gate: float) -> Costs:

@@ -14,13 +14,23 @@ MAD_TO_STD = 1.4826
 
 
 def median(values: npt.ArrayLike) -> float:
-    """np.median of a 1-D array, quick for short ones."""
+    """np.median of a 1-D array, the same number, quick for short ones and long ones."""
     array = np.asarray(values, dtype=np.float64).reshape(-1)
     n = array.size
-    if n == 0 or n > SHORT_ARRAY:
+    mid = n // 2
+    if n > SHORT_ARRAY:
+        # One partition at the middle (numpy's vectorised one takes a single index: a sixth
+        # of np.median's time, whose partition takes three), then the lower half's largest.
+        part = np.partition(array, mid)
+        middle = float(part[mid]) if n % 2 else float((part[:mid].max() + part[mid]) / 2.0)
+        # Which of several zeros (or NaNs) is the middle one depends on the partition: numpy's
+        # own answer there, with its sign of zero.
+        if middle == 0.0 or np.isnan(part[mid:]).any():
+            return float(np.median(array))
+        return middle
+    if n == 0:
         return float(np.median(array))
     ordered = sorted(array.tolist())
-    mid = n // 2
     return ordered[mid] if n % 2 else 0.5 * (ordered[mid - 1] + ordered[mid])
 
 
@@ -53,6 +63,8 @@ def column_medians(values: FloatArray) -> FloatArray:
 def runs(keys: IntArray, counts: IntArray) -> list[IntArray]:
     """For every key 0, 1, ...: where it occurs in `keys` (whose bincount is `counts`), in
     order; the same as np.flatnonzero(keys == k) for each k, by one stable sort."""
-    order = np.argsort(keys, kind="stable")
+    # Small keys (sensor indices) sort stably by radix as 16-bit integers, several times faster.
+    small = keys.size > 0 and keys.min() >= 0 and keys.max() < np.iinfo(np.int16).max
+    order = np.argsort(keys.astype(np.int16) if small else keys, kind="stable")
     bounds = np.concatenate([[0], np.cumsum(counts)])
     return [order[lo:hi] for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True)]

@@ -196,7 +196,7 @@ def successors(s: Sensors, track: IntArray) -> tuple[IntArray, IntArray]:
     nxt = np.full(n, -1, dtype=np.int64)
     prv = np.full(n, -1, dtype=np.int64)
     assigned = np.flatnonzero(track >= 0)
-    chain = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
+    chain = s.by_track(assigned, track)
     same = track[chain[1:]] == track[chain[:-1]]
     nxt[chain[:-1][same]] = chain[1:][same]
     prv[chain[1:][same]] = chain[:-1][same]
