@@ -181,6 +181,38 @@ def test_serve_drains_for_longer_than_the_longest_wait(tmp_path, monkeypatch):
         assert started[-1].timeout_graceful_shutdown > expected_wait
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="httptools and uvloop are not installed there")
+def test_serve_runs_on_the_c_http_parser_and_uvloop(tmp_path, monkeypatch):
+    # Installed with roadlink (pyproject.toml), and taken by uvicorn as `serve` configures it:
+    # both are the measured part of a small job's overhead that uvicorn itself adds.
+    import asyncio
+
+    import uvicorn
+    from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+
+    from roadlink.cli import server
+
+    started: list[uvicorn.Config] = []
+    monkeypatch.setattr(uvicorn, "run", lambda api, **kw: started.append(uvicorn.Config(api, **kw)))
+    monkeypatch.setattr(server, "_exit_on_sigterm", lambda: None)
+    monkeypatch.setattr(server.gc, "freeze", lambda: None)
+    monkeypatch.setattr(server.sys, "setswitchinterval", lambda seconds: None)
+    env = {"ROADLINK_DATABASE_URL": f"sqlite:///{tmp_path / 's.db'}", "ROADLINK_WORKERS": "0"}
+    done = runner.invoke(app, ["serve"], env=env)
+    assert done.exit_code == 0, done.output
+    config = started[-1]
+    config.load()
+    assert config.http_protocol_class is HttpToolsProtocol
+    loop_factory = config.get_loop_factory()
+    assert loop_factory is not None
+    loop = loop_factory()
+    try:
+        assert type(loop).__module__.startswith("uvloop")
+        assert isinstance(loop, asyncio.AbstractEventLoop)
+    finally:
+        loop.close()
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_serve_stops_its_workers_with_it(tmp_path: Path, sig: signal.Signals) -> None:
