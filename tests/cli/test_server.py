@@ -158,27 +158,35 @@ def test_worker_check_is_alive_while_a_worker_runs_and_not_once_it_stopped(tmp_p
     assert runner.invoke(app, ["worker", "--check"], env=env).exit_code == 1
 
 
-def test_serve_drains_for_longer_than_the_longest_wait(tmp_path, monkeypatch):
-    # uvicorn as `serve` configures it, for the default and a raised ROADLINK_MAX_WAIT_SECONDS.
+def serve_config(tmp_path, monkeypatch, **env: str):
+    """uvicorn's configuration as `roadlink serve` sets it up with ROADLINK_* `env` (uvicorn
+    not started; what `serve` does to its own process kept from the test's)."""
     import uvicorn
 
     from roadlink.cli import server
 
     started: list[uvicorn.Config] = []
     monkeypatch.setattr(uvicorn, "run", lambda api, **kw: started.append(uvicorn.Config(api, **kw)))
-    # What `serve` does to its own process, kept from the test's.
     monkeypatch.setattr(server, "_exit_on_sigterm", lambda: None)
     monkeypatch.setattr(server.gc, "freeze", lambda: None)
     monkeypatch.setattr(server.sys, "setswitchinterval", lambda seconds: None)
-    for max_wait in (None, "300"):
-        env = {"ROADLINK_DATABASE_URL": f"sqlite:///{tmp_path / 's.db'}", "ROADLINK_WORKERS": "0"}
-        if max_wait:
-            env["ROADLINK_MAX_WAIT_SECONDS"] = max_wait
-        done = runner.invoke(app, ["serve"], env=env)
-        assert done.exit_code == 0, done.output
-        expected_wait = float(max_wait or Settings.model_fields["max_wait_seconds"].default)
-        assert started[-1].timeout_graceful_shutdown is not None
-        assert started[-1].timeout_graceful_shutdown > expected_wait
+    env = {
+        "ROADLINK_DATABASE_URL": f"sqlite:///{tmp_path / 's.db'}",
+        "ROADLINK_WORKERS": "0",
+        **{f"ROADLINK_{name.upper()}": value for name, value in env.items()},
+    }
+    done = runner.invoke(app, ["serve"], env=env)
+    assert done.exit_code == 0, done.output
+    return started[-1]
+
+
+def test_serve_drains_for_longer_than_the_longest_wait(tmp_path, monkeypatch):
+    # For the default and a raised ROADLINK_MAX_WAIT_SECONDS.
+    default = float(Settings.model_fields["max_wait_seconds"].default)
+    for env, expected_wait in (({}, default), ({"max_wait_seconds": "300"}, 300.0)):
+        config = serve_config(tmp_path, monkeypatch, **env)
+        assert config.timeout_graceful_shutdown is not None
+        assert config.timeout_graceful_shutdown > expected_wait
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="httptools and uvloop are not installed there")
@@ -187,20 +195,9 @@ def test_serve_runs_on_the_c_http_parser_and_uvloop(tmp_path, monkeypatch):
     # both are the measured part of a small job's overhead that uvicorn itself adds.
     import asyncio
 
-    import uvicorn
     from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
-    from roadlink.cli import server
-
-    started: list[uvicorn.Config] = []
-    monkeypatch.setattr(uvicorn, "run", lambda api, **kw: started.append(uvicorn.Config(api, **kw)))
-    monkeypatch.setattr(server, "_exit_on_sigterm", lambda: None)
-    monkeypatch.setattr(server.gc, "freeze", lambda: None)
-    monkeypatch.setattr(server.sys, "setswitchinterval", lambda seconds: None)
-    env = {"ROADLINK_DATABASE_URL": f"sqlite:///{tmp_path / 's.db'}", "ROADLINK_WORKERS": "0"}
-    done = runner.invoke(app, ["serve"], env=env)
-    assert done.exit_code == 0, done.output
-    config = started[-1]
+    config = serve_config(tmp_path, monkeypatch)
     config.load()
     assert config.http_protocol_class is HttpToolsProtocol
     loop_factory = config.get_loop_factory()
