@@ -4,8 +4,10 @@ programme that `anchors` runs on every lane of every segment, and its pairs' mar
 A chain pairs rows (upstream detections) with columns (downstream ones), both in time order, so
 that neither order is broken. Its score is a log likelihood ratio: each pair's own gain (given),
 plus, from one pair to the next, how well the change of travel time fits followers' change
-(`step_score`), less a cost per detection skipped between them; or a fresh start. See
-docs/assignment.md (Lane order).
+(`step_score`), less a cost per detection skipped between them; or a fresh start. Many
+chains (every block of a road's lanes) are drawn in one programme, row i of each at once, since
+a chain's row alone is too short to pay numpy's cost per call. See docs/assignment.md (Lane
+order).
 """
 
 from __future__ import annotations
