@@ -254,20 +254,20 @@ def _chain_scores(
         jump = best_before[owner, column] - JUMP
         better = jump > row
         row[better] = jump[better]
-        origin = np.full((owner.size, 2), -1, dtype=np.int64)
-        if trace:
-            origin[better] = where_before[owner, column][better]
         if i:
             best, rows, shift = _best_step(batch, score, steps, pairs, i)
             improved = np.flatnonzero(best > row)
             row[improved] = best[improved]
-            origin[improved, 0] = rows[improved]
-            origin[improved, 1] = column[improved] - shift[improved]
         score[here] = row + batch.gain[here]
         row_scores = np.full((pairs.active.size, widest), -np.inf)
         row_scores[pairs.local, column] = score[here]
         active = pairs.active
-        if trace:
+        if trace:  # each pair's pair before: where it jumped from, else the step it took
+            origin = np.full((owner.size, 2), -1, dtype=np.int64)
+            origin[better] = where_before[owner, column][better]
+            if i:
+                origin[improved, 0] = rows[improved]
+                origin[improved, 1] = column[improved] - shift[improved]
             back[back_base[owner] + i * batch.columns[owner] + column] = origin
             best_before[active], where_before[active] = _best_so_far(
                 row_scores, i, best_before[active], where_before[active]
