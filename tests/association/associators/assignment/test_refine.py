@@ -62,7 +62,9 @@ def test_the_links_kept_are_judged_and_without_relinking_the_wrong_one_is_judged
     # V0's link from 200 m into V1's detection at 300 m is surely wrong; V1's link into V0's
     # is too far off in time to be a candidate at all, so it is not judged.
     assert judged[6] < 1e-3 and np.isnan(judged[7])
-    assert judged[2:6] == pytest.approx(np.ones(4), abs=1e-3)
+    # Two vehicles over a few seconds are all window edge, where a detection is likelier to have
+    # no partner in the batch (`edges.py`): the sure links are a little less than certain.
+    assert judged[2:6] == pytest.approx(np.ones(4), abs=3e-3)
 
 
 def test_a_tentative_judging_stops_at_the_first_change_and_a_sweep_says_whether_it_changed():

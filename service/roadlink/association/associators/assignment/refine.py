@@ -8,6 +8,7 @@ import numpy as np
 
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
+from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import Gate, Pairs
 from roadlink.association.associators.assignment.matching import chosen_marginals, match
 from roadlink.association.associators.assignment.model import SegmentModel
@@ -60,6 +61,7 @@ def refine_boundaries(
     n_sensors = s.positions.size
     levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
     gate = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
+    edges = WindowEdges.of(s, model, params.gate_cost / 2.0)
     changed = False
     for k in range(1, n_sensors + 1):
         # Detections at sensor k - 1 got their final predecessor at the previous boundary.
@@ -75,6 +77,7 @@ def refine_boundaries(
         tails, pairs = ends
         cost = boundary_cost(params, model, pairs, levels, s, (nxt, prv))
         cost -= anchor_bonus(pairs, anchor)
+        cost += edges.cost(pairs)
         if relink:
             # Splitting a track costs more here than declining a link did: a track the forward
             # pass built is evidence in itself, so re-pairing must pay for itself.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -50,6 +51,16 @@ class Sensors:
 
     def members(self, k: int) -> IntArray:
         return self.order[self.start[k] : self.start[k + 1]]
+
+    @cached_property
+    def first_time(self) -> FloatArray:
+        """Each sensor's first detection time: where the batch's window opens for it."""
+        return self.sorted_time[self.start[:-1]]
+
+    @cached_property
+    def last_time(self) -> FloatArray:
+        """Each sensor's last detection time: where the batch's window closes for it."""
+        return self.sorted_time[self.start[1:] - 1]
 
     def by_track(self, detections: IntArray, track: IntArray) -> IntArray:
         """The detections (each in a track) sorted by track, then sensor: the order of

@@ -10,6 +10,7 @@ import numpy.typing as npt
 
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
+from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import Gate
 from roadlink.association.associators.assignment.matching import match
 from roadlink.association.associators.assignment.model import SegmentModel
@@ -136,10 +137,11 @@ def build_tracks(
     level = TrackLevel.start(s, model.pace)
     tail = np.zeros(0, dtype=np.int64)  # last detection of every track, by track index
     gate = Gate.of(s, model, params, params.gate_cost)
+    edges = WindowEdges.of(s, model, params.gate_cost / 2.0)
     for q in range(n_sensors):
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
-            linked_b = _extend_tracks(s, model, params, gate, q, track, tail, level, anchor)
+            linked_b = _extend_tracks(s, model, params, gate, edges, q, track, tail, level, anchor)
         born = _births(s.members(q), linked_b, track, leader)
         track[born] = tail.size + np.arange(born.size)
         tail = np.concatenate([tail, born])
@@ -153,6 +155,7 @@ def _extend_tracks(
     model: SegmentModel,
     params: AssignmentParams,
     gate: Gate,
+    edges: WindowEdges,
     q: int,
     track: IntArray,
     tail: IntArray,
@@ -160,7 +163,8 @@ def _extend_tracks(
     anchor: Anchors | None,
 ) -> IntArray:
     """Link the open tracks (those whose last detection lies within `max_skip` missed sensors)
-    to sensor q's detections, one to one at least cost; the detections linked."""
+    to sensor q's detections, one to one at least cost; the detections linked. A link pays for
+    the window's edges (`edges.WindowEdges`)."""
     open_tails = tail[s.sensor[tail] >= q - 1 - params.max_skip]
     pairs = gate.pairs(open_tails, q)
     if not pairs.a.size:
@@ -168,6 +172,7 @@ def _extend_tracks(
     a, b = pairs.a, pairs.b
     cost = link_cost(params, model, pairs, level.of(a), detection_level(s, b), s)
     cost -= anchor_bonus(pairs, anchor)
+    cost += edges.cost(pairs)
     linked_a, linked_b = match(a, b, cost, params.gate_cost)
     level.extend(s, linked_a, linked_b, model.pace)
     track[linked_b] = track[linked_a]

@@ -1,0 +1,88 @@
+"""The batch's time window: a detection near its edge may have no partner inside it.
+
+A batch holds what every sensor saw over some window of time. A vehicle seen upstream shortly
+before the window closes reaches the next sensor after it; one seen downstream shortly after the
+window opens passed the sensor before it earlier. Where travel times are short against the
+window (free flow: seconds against minutes) this touches a few detections at each end; in a
+crawl (a few minutes a segment, in a window of five) it touches half of them. The matching lets
+every detection stay unmatched at a fixed cost (`gate_cost` / 2, `matching.match`), which says
+that a detection without a partner is rare: at the edge it is not, and such detections were
+linked to any partner within the gate, vehicles from before the window to vehicles from after
+it, at travel times a third or more shorter than the true ones.
+
+So a link pays for what the window says of its ends (`WindowEdges`): -2 log of the chance that
+a's successor at the next sensor falls inside the window, and the same of b's predecessor at the
+sensor before, each from the travel time that the segment's model predicts at a's (b's) speed and
+the other sensor's median speed, as a log-normal of spread at least EDGE_SPREAD. A detection far
+from the edges pays nothing; one whose partner surely lies outside pays up to the whole of what
+staying unmatched costs, so it is linked only where the link is as likely as one between two
+detections that surely have partners. The chance is a detection's own, read at the neighbouring
+sensor: a link over a missed sensor pays what its ends would pay to their neighbours.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from roadlink.association.associators.assignment.gating import Pairs
+from roadlink.association.associators.assignment.model import SegmentModel
+from roadlink.association.associators.assignment.sensors import Sensors, travel_time
+from roadlink.association.detections import FloatArray
+
+# The spread (log travel time) of the prediction from one end alone: the far end's speed is
+# unknown, taken as its sensor's median, and a queue's spot speeds tell its crawl poorly.
+EDGE_SPREAD = 0.3
+# Beyond this many spreads inside the window, the chance of falling outside costs under 1e-4:
+# none is computed.
+EDGE_FAR = 4.0
+
+
+@dataclass(frozen=True)
+class WindowEdges:
+    """What each detection costs a link for the window: as the link's upstream end (`leaving`:
+    its successor may come after the window closes) and as its downstream end (`arriving`: its
+    predecessor may have passed before the window opened)."""
+
+    leaving: FloatArray
+    arriving: FloatArray
+
+    @classmethod
+    def of(cls, s: Sensors, model: SegmentModel, unmatched: float) -> WindowEdges:
+        """Each detection's two costs, at most `unmatched` (what staying unmatched costs)."""
+        leaving, arriving = np.zeros(s.time.size), np.zeros(s.time.size)
+        for p in range(s.positions.size - 1):
+            q = p + 1
+            gap = s.positions[q] - s.positions[p]
+            bias, skew = model.log_bias[p, 1], model.skew[p, 1]
+            spread = max(float(model.time_spread[p, 1]), EDGE_SPREAD)
+            up, down = s.members(p), s.members(q)
+            ahead = bias + np.log(travel_time(gap, s.speed[up], s.median_speed[q], skew))
+            behind = bias + np.log(travel_time(gap, s.median_speed[p], s.speed[down], skew))
+            leaving[up] = _cost_outside(s.last_time[q] - s.time[up], ahead, spread, unmatched)
+            arriving[down] = _cost_outside(
+                s.time[down] - s.first_time[p], behind, spread, unmatched
+            )
+        return cls(leaving, arriving)
+
+    def cost(self, pairs: Pairs) -> FloatArray:
+        """What each candidate link a -> b pays for the window."""
+        result: FloatArray = self.leaving[pairs.a] + self.arriving[pairs.b]
+        return result
+
+
+def _cost_outside(
+    room: FloatArray, log_expected: FloatArray, spread: float, unmatched: float
+) -> FloatArray:
+    """-2 log P(travel time <= room), at most `unmatched`, for a log-normal travel time of centre
+    `log_expected` and `spread`: `unmatched` where there is no room at all, 0 where the room is
+    EDGE_FAR spreads or more beyond the centre."""
+    from scipy.special import log_ndtr  # on first use, as in `matching.match`
+
+    with np.errstate(divide="ignore"):
+        z = (np.log(np.maximum(room, 0.0)) - log_expected) / spread
+    cost = np.zeros(z.size)
+    near = z < EDGE_FAR
+    cost[near] = np.minimum(-2.0 * log_ndtr(z[near]), unmatched)
+    return cost

@@ -1,0 +1,107 @@
+"""The batch's time window (`assignment/edges.py`): a link pays for the chance that its upstream
+end's successor comes after the window closes, or its downstream end's predecessor passed before
+it opened."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from roadlink.association import associate
+from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.edges import EDGE_SPREAD, WindowEdges
+from roadlink.association.associators.assignment.gating import Pairs
+from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.csvio import read_detections_csv
+from roadlink.association.detections import Detections
+from tests.association.associators.assignment.roads import kinematic_model
+
+CREEP = Path(__file__).parents[3] / "data" / "sumo-features" / "val-creep.csv"
+PARAMS = AssignmentParams()
+UNMATCHED = PARAMS.gate_cost / 2.0
+# A crawl at 1 m/s over 100 m (100 s a segment) seen for 300 s: a vehicle every 10 s at each
+# sensor, from t = 0 to t = 300.
+TIMES = np.arange(0.0, 301.0, 10.0)
+
+
+def crawl() -> Detections:
+    n = TIMES.size
+    return Detections.from_columns(
+        position=np.repeat([0.0, 100.0], n),
+        velocity=np.ones(2 * n),
+        timestamp=np.tile(TIMES, 2),
+    )
+
+
+def edges_of(d: Detections) -> tuple[WindowEdges, np.ndarray]:
+    s = arrange(d, PARAMS)
+    return WindowEdges.of(s, kinematic_model(2, PARAMS), UNMATCHED), s.time
+
+
+def at(times: np.ndarray, t: float, sensor: int) -> int:
+    return int(np.flatnonzero(times == t)[sensor])
+
+
+def test_far_from_the_edges_a_detection_pays_nothing() -> None:
+    edges, times = edges_of(crawl())
+    # Upstream at t = 0 its successor is due at 100 s, 200 s before the window closes (3.7
+    # spreads): what it pays is below 1e-3. Downstream at 300 s, its predecessor is due at 200 s.
+    assert edges.leaving[at(times, 0.0, 0)] < 1e-3
+    assert edges.arriving[at(times, 300.0, 1)] < 1e-3
+    # The first sensor's detections have no predecessor to pay for, the last's no successor.
+    n = TIMES.size
+    assert np.all(edges.arriving[:n] == 0) and np.all(edges.leaving[n:] == 0)
+
+
+def test_a_partner_due_at_the_edge_costs_even_odds_and_one_due_beyond_costs_staying_alone() -> None:
+    edges, times = edges_of(crawl())
+    even = -2.0 * np.log(0.5)
+    # Upstream at 200 s: its successor is due at 300 s, as the window closes.
+    assert edges.leaving[at(times, 200.0, 0)] == pytest.approx(even)
+    # Downstream at 100 s: its predecessor was due at 0 s, as the window opened.
+    assert edges.arriving[at(times, 100.0, 1)] == pytest.approx(even)
+    # Upstream at 290 s, due at 390 s: surely outside; at most what staying unmatched costs.
+    assert edges.leaving[at(times, 290.0, 0)] == pytest.approx(UNMATCHED)
+    assert edges.leaving[at(times, 300.0, 0)] == pytest.approx(UNMATCHED)
+
+
+def test_the_cost_falls_as_the_room_grows_and_a_link_pays_both_ends() -> None:
+    edges, times = edges_of(crawl())
+    upstream = [at(times, t, 0) for t in (150.0, 200.0, 250.0)]
+    assert np.all(np.diff(edges.leaving[upstream]) > 0)
+    # At 150 s the room is 150 s for a travel time due in 100 s: -2 log P(z <= log(1.5) / spread).
+    z = np.log(1.5) / EDGE_SPREAD
+    assert edges.leaving[upstream[0]] == pytest.approx(-2.0 * np.log(norm_cdf(z)), rel=1e-6)
+    a, b = np.array(upstream), np.array([at(times, 100.0, 1)] * 3)
+    pairs = Pairs(a, b, np.zeros(3), np.zeros(3), np.ones(3), np.ones(3, dtype=np.int64))
+    assert edges.cost(pairs) == pytest.approx(edges.leaving[a] + edges.arriving[b])
+
+
+def norm_cdf(z: float) -> float:
+    return 0.5 * math.erfc(-z / math.sqrt(2.0))
+
+
+def test_in_free_flow_only_the_last_seconds_pay() -> None:
+    # 30 m/s over 100 m (3.3 s a segment) in the same 300 s window.
+    n = TIMES.size
+    d = Detections.from_columns(
+        position=np.repeat([0.0, 100.0], n),
+        velocity=np.full(2 * n, 30.0),
+        timestamp=np.tile(TIMES, 2),
+    )
+    edges, times = edges_of(d)
+    paying = edges.leaving > 1e-3
+    assert times[paying].min() >= 290.0
+    assert (edges.arriving > 1e-3).sum() <= 1
+
+
+@pytest.mark.slow
+def test_a_crawl_cut_by_the_window_is_linked_better() -> None:
+    # SUMO's val-creep (seed 0, with lane, length and class): 3 lanes into a zone limited to
+    # 2.5 m/s, sensors every 200 m (80 s a segment in the zone), seen for 240 s. Measured 79.3 %
+    # before a link paid for the window's edges, 81.9 % since.
+    metrics = associate(read_detections_csv(CREEP.read_text()), "assignment").metrics
+    assert metrics is not None and metrics.accuracy >= 0.81
