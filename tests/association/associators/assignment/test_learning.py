@@ -6,7 +6,12 @@ import pytest
 
 from roadlink.association import Detections
 from roadlink.association.associators.assignment import AssignmentParams
-from roadlink.association.associators.assignment.learning import best_skew, learn_segments
+from roadlink.association.associators.assignment.anchors import Anchors
+from roadlink.association.associators.assignment.learning import (
+    best_skew,
+    confident_detections,
+    learn_segments,
+)
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.sensors import arrange
 
@@ -61,3 +66,16 @@ def test_best_skew_finds_which_end_explains_the_travel_time():
     dt = dx / same * np.exp(0.02 * rng.standard_normal(n))
     assert best_skew(dt, dx, same, same * np.exp(0.02 * rng.standard_normal(n))) == 0.5
     assert best_skew(dt[:2], dx[:2], same[:2], same[:2]) == 0.5  # too few links to say
+
+
+def test_a_short_track_is_confident_where_lane_order_anchors_its_link():
+    # Track 0 has three detections; tracks 1 and 2 two each, detection 7 none. Detection 4's
+    # link from 3 is anchored with a bonus, detection 6's from 5 by a chain that does not weigh.
+    track = np.array([0, 0, 0, 1, 1, 2, 2, -1])
+    predecessor = np.array([-1, -1, -1, -1, 3, -1, 5, -1])
+    bonus = np.array([0.0, 0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+    assert confident_detections(track).tolist() == [0, 1, 2]
+    assert confident_detections(track, Anchors(predecessor, bonus)).tolist() == [0, 1, 2, 3, 4]
+    # An anchor the tracks did not follow makes nothing confident.
+    apart = np.array([0, 0, 0, 1, 3, 2, 2, -1])
+    assert confident_detections(apart, Anchors(predecessor, bonus)).tolist() == [0, 1, 2]

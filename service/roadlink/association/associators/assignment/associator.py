@@ -102,7 +102,7 @@ def link_and_learn(
                 passes.progress(rounds / passes.total)
             break
         if r + 1 < rounds:
-            model = learn_segments(s, track, params, prior)
+            model = learn_segments(s, track, params, prior, anchor)
             learned_from = track
             if anchor is None and params.lane_anchors and params.feature_weight > 0:
                 # Lane order needs the model learned from the first tracks (the length error

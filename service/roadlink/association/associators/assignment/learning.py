@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from roadlink.association.associators.assignment.anchors import Anchors
 from roadlink.association.associators.assignment.features import learn_features
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel, Tails
@@ -42,12 +43,17 @@ Links = tuple[IntArray, IntArray]
 
 
 def learn_segments(
-    s: Sensors, track: IntArray, params: AssignmentParams, prior: SegmentModel
+    s: Sensors,
+    track: IntArray,
+    params: AssignmentParams,
+    prior: SegmentModel,
+    anchor: Anchors | None = None,
 ) -> SegmentModel:
-    """Fit every segment's model, span by span, from the links of the confident tracks; then the
-    spread of a track's speed about its own pace, and the tails of the residuals."""
+    """Fit every segment's model, span by span, from the links of the confident tracks (and the
+    links that lane order `anchor`s, `confident_detections`); then the spread of a track's speed
+    about its own pace, and the tails of the residuals."""
     model = prior.copy()
-    confident = confident_detections(track)
+    confident = confident_detections(track, anchor)
     # Detections of a track in road order: sort by (track, sensor).
     chain = s.by_track(confident, track)
     links: list[Links] = []
@@ -73,11 +79,23 @@ def learn_segments(
     return model
 
 
-def confident_detections(track: IntArray) -> IntArray:
-    """The detections of tracks with at least CONFIDENT_TRACK_LENGTH detections."""
+def confident_detections(track: IntArray, anchor: Anchors | None = None) -> IntArray:
+    """The detections of tracks with at least CONFIDENT_TRACK_LENGTH detections, and of tracks
+    that hold a link lane order anchors (one that weighs, `anchors.weigh_anchors`).
+
+    A track of one link may be two vehicles paired by chance; one of several links has held
+    together over several segments. But in a crawl, where a segment takes minutes of a batch of
+    five, no vehicle is seen at three sensors: the tracks that are are those whose links were
+    made too fast, and learning from them alone taught each segment their travel times. An
+    anchored link is sure on other grounds (its lane's order), so its track counts however short."""
     assigned = np.flatnonzero(track >= 0)
     sizes = np.bincount(track[assigned])
-    return assigned[sizes[track[assigned]] >= CONFIDENT_TRACK_LENGTH]
+    sure = sizes >= CONFIDENT_TRACK_LENGTH
+    if anchor is not None:
+        b = np.flatnonzero(anchor.bonus > 0)
+        a = anchor.predecessor[b]
+        sure[track[b[(track[b] >= 0) & (track[a] == track[b])]]] = True
+    return assigned[sure[track[assigned]]]
 
 
 def span_links(s: Sensors, track: IntArray, chain: IntArray, span: int) -> Links:

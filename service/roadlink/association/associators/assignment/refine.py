@@ -61,7 +61,7 @@ def refine_boundaries(
     n_sensors = s.positions.size
     levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
     gate = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
-    edges = WindowEdges.of(s, model, params.gate_cost / 2.0)
+    edges = WindowEdges.of(s, model, gate.gate / 2.0)
     changed = False
     for k in range(1, n_sensors + 1):
         # Detections at sensor k - 1 got their final predecessor at the previous boundary.
