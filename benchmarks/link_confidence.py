@@ -29,14 +29,11 @@ from roadlink.association import associate
 from roadlink.association.detections import CLUTTER, Detections
 
 try:
-    from benchmarks.sumo_accuracy import EVERY_SCENARIO, SUMO_SCENARIOS, VALIDATION, load_case
+    from benchmarks.sumo_accuracy import EVERY_SCENARIO, load_case
+    from benchmarks.sumo_scenarios import SUMO_SCENARIOS, VALIDATION
 except ModuleNotFoundError:  # run as a script: its folder is on the path
-    from sumo_accuracy import (  # type: ignore[no-redef]
-        EVERY_SCENARIO,
-        SUMO_SCENARIOS,
-        VALIDATION,
-        load_case,
-    )
+    from sumo_accuracy import EVERY_SCENARIO, load_case  # type: ignore[no-redef]
+    from sumo_scenarios import SUMO_SCENARIOS, VALIDATION  # type: ignore[no-redef]
 
 RESULTS = Path(__file__).parent / "results" / "link_confidence.json"
 BINS = (0.0, 0.5, 0.7, 0.9, 0.99, 1.0)

@@ -13,6 +13,7 @@ def test_every_scenario_name_belongs_to_one_group():
     names = [name for group in bench.SCENARIO_GROUPS.values() for name in group]
     assert len(names) == len(set(names))
     assert set(bench.SCENARIO_GROUPS["main"]) == set(SUMO_SCENARIOS)
+    assert set(bench.SCENARIO_GROUPS) == {"main", "validation", "speed-noise", "holdout"}
 
 
 def test_the_speed_noise_variants_change_the_speed_error_alone():
