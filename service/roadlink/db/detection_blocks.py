@@ -108,10 +108,12 @@ def _length_bytes(lengths: FloatArray) -> tuple[int, bytes]:
 def _class_bytes(classes: ObjectArray) -> tuple[int, bytes, bytes]:
     """The class flags, codes and vocabulary: each detection's class as a code numbered in
     order of first appearance, one dict lookup each (a batch has a handful of classes)."""
-    index: defaultdict[str | None, int] = defaultdict(count(1).__next__, {None: 0})
-    codes = np.fromiter(map(index.__getitem__, classes.tolist()), np.uint32, len(classes))
-    if len(index) == 1:
+    listed = classes.tolist()
+    # Counted only when the first reports none (a batch with classes mostly has one there).
+    if not listed or (listed[0] is None and listed.count(None) == len(listed)):
         return 0, b"", b""
+    index: defaultdict[str | None, int] = defaultdict(count(1).__next__, {None: 0})
+    codes = np.fromiter(map(index.__getitem__, listed), np.uint32, len(listed))
     vocabulary = orjson.dumps(list(index)[1:])
     if len(index) <= 1 << 8:
         return _CLASS, codes.astype(np.uint8).tobytes(), vocabulary
