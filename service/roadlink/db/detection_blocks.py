@@ -17,11 +17,11 @@ The layout (version 2), little-endian:
   where not measured) and the vehicle classes' codes (n uint8, uint16 or uint32: 0 where not
   reported, k for the vocabulary's k-th word), each only when some detection reports it;
 - the text columns, each a JSON array of strings and nulls, then the vocabulary, a JSON array
-  of the distinct classes (empty when no detection reports one).
+  of the distinct classes (no bytes at all when no detection reports one).
 
 Version 1 (still read) held lane as int16, length as float64, and the classes as a fourth JSON
-text column in place of codes and vocabulary: a class per detection written out, 0.8 MB of a
-100,000-detection batch, where the codes and the vocabulary take 0.1 MB.
+text column in place of codes and vocabulary: a class per detection written out, 0.67 MB of
+a 100,000-detection batch, where the codes and the vocabulary take 0.1 MB.
 
 Numbers are stored as their bytes (or as tenths that divide back to the same float64), so
 every value reads back exactly as it was validated.
