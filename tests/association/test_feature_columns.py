@@ -13,6 +13,7 @@ from roadlink.association.feature_columns import (
     MAX_LANE,
     MAX_LENGTH,
     NO_LANE,
+    CodedTexts,
     class_column,
     json_floats,
     lane_column,
@@ -51,6 +52,24 @@ def test_classes_are_stripped_short_printable_words():
     classes = class_column(4, ["car", None, " truck ", "x" * MAX_CLASS_CHARS], problems)
     assert problems == []
     assert classes.tolist() == ["car", None, "truck", "x" * MAX_CLASS_CHARS]
+
+
+@pytest.mark.parametrize(
+    "classes",
+    [
+        ["car", None, "truck", "car", None],
+        [None, "5", "5", "5", "5"],
+        ["car", " truck ", "car", "x" * 33, 5],  # stripped; too long and not text named
+    ],
+)
+def test_coded_classes_read_as_the_same_classes_listed(classes):
+    words = list(dict.fromkeys(classes))
+    coded = CodedTexts(words, np.array([words.index(c) for c in classes]))
+    listed: list[Problem] = []
+    from_codes: list[Problem] = []
+    expected = class_column(len(classes), classes, listed)
+    assert class_column(len(classes), coded, from_codes).tolist() == expected.tolist()
+    assert from_codes == listed
 
 
 @pytest.mark.parametrize(

@@ -4,18 +4,20 @@ the `detection` table into blocks and back without changing a value."""
 
 from __future__ import annotations
 
+import struct
 import uuid
 from datetime import UTC, datetime
 
 import numpy as np
+import orjson
 import pytest
 from alembic import command
 from sqlalchemy import Engine, Uuid, column, delete, insert, table, text
 
 from roadlink.association.csvio import write_detections_csv
-from roadlink.association.detections import COLUMNS, Detections, concatenate
+from roadlink.association.detections import COLUMNS, NO_LANE, Detections, concatenate
 from roadlink.db import repository
-from roadlink.db.detection_blocks import Block, detections_of, encode
+from roadlink.db.detection_blocks import TEXT_COLUMNS, Block, detections_of, encode
 from roadlink.db.engine import make_engine, make_session_factory
 from roadlink.db.json_columns import BatchSelection, WindowSelection
 from roadlink.db.migrate import alembic_config
@@ -79,7 +81,68 @@ def test_masks_pick_rows_in_order_across_blocks_with_and_without_features() -> N
     assert len(detections_of([])) == 0
 
 
-@pytest.mark.parametrize("data", [b"", b"RLDB\x02" + bytes(30), encode(_featured())[:-1]])
+def _encode_version_1(d: Detections) -> bytes:
+    """A block as version 1 wrote it: lanes int16, lengths float64, the classes as text."""
+    classes = d.vehicle_class.tolist()
+    flags = (1 if bool(d.has_lane.any()) else 0) | (2 if bool(d.has_length.any()) else 0)
+    flags |= 4 if any(c is not None for c in classes) else 0
+    texts = [orjson.dumps(getattr(d, name).tolist()) for name in TEXT_COLUMNS[:3]]
+    texts.append(orjson.dumps(classes) if flags & 4 else b"")
+    parts = [struct.pack("<4sBBIIIII", b"RLDB", 1, flags, len(d), *map(len, texts))]
+    parts += [d.position.tobytes(), d.velocity.tobytes(), d.timestamp.tobytes()]
+    parts += [d.lane.astype("<i2").tobytes()] if flags & 1 else []
+    parts += [d.length.tobytes()] if flags & 2 else []
+    return b"".join(parts + texts)
+
+
+def _with(d: Detections, **features: object) -> Detections:
+    columns = {name: getattr(d, name) for name in COLUMNS} | features
+    return Detections(**columns)
+
+
+def test_a_version_1_block_still_reads() -> None:
+    featured, plain = _featured(), simulate(preset("small"), seed=1).detections
+    for d in (featured, plain):
+        block = Block.parse(_encode_version_1(d))
+        assert block.version == 1
+        _same(detections_of([block]), d)
+    blocks = [Block.parse(_encode_version_1(featured)), Block.parse(encode(plain))]
+    _same(detections_of(blocks), concatenate([featured, plain]))
+
+
+def test_features_that_need_it_are_stored_wide() -> None:
+    """Lanes past 127, lengths that are no whole number of tenths, and more than 255 classes
+    are stored in wider forms, and every value reads back exactly."""
+    d = _featured()
+    n = len(d)
+    rng = np.random.default_rng(3)
+    wide = _with(
+        d,
+        lane=np.where(d.has_lane, 255 - d.lane, NO_LANE),
+        length=np.where(d.has_length, d.length + rng.random(n) / 1000, np.nan),
+        vehicle_class=np.array([f"class {i % 300}" for i in range(n)], dtype=object),
+    )
+    assert len(encode(wide)) > len(encode(d)) + n * (1 + 6 + 1)  # lanes, lengths, codes
+    _same(detections_of([Block.parse(encode(wide))]), wide)
+    n = (1 << 16) + 10  # past the codes' 16 bits
+    many = Detections(
+        *(np.arange(n, dtype=float) for _ in range(3)),
+        *(np.array([f"{i}" for i in range(n)], dtype=object) for _ in range(3)),
+        vehicle_class=np.array([f"{i}" for i in range(n)], dtype=object),
+    )
+    _same(detections_of([Block.parse(encode(many))]), many)
+
+
+def test_lengths_in_tenths_read_back_bit_for_bit() -> None:
+    d = simulate(preset("small"), seed=6).detections
+    tenths = np.arange(len(d)) % 1000 + 1
+    lengths = np.where(tenths % 7 == 0, np.nan, tenths / 10)
+    block = Block.parse(encode(_with(d, length=lengths)))
+    assert block.offsets["length"][1] == 2 * len(d)
+    assert block.floats("length").tobytes() == lengths.tobytes()
+
+
+@pytest.mark.parametrize("data", [b"", b"RLDB\x03" + bytes(30), encode(_featured())[:-1]])
 def test_anything_but_a_whole_block_is_refused(data: bytes) -> None:
     with pytest.raises(ValueError):
         Block.parse(data)

@@ -12,11 +12,15 @@ the body again and names the problems.
 
 from __future__ import annotations
 
+from collections import defaultdict
+from itertools import count
 from operator import attrgetter
 from typing import Any
 
 import msgspec
 import numpy as np
+
+from roadlink.association.feature_columns import CodedTexts
 
 MISSING = msgspec.Raw(b"")
 
@@ -45,7 +49,7 @@ class Body(msgspec.Struct, forbid_unknown_fields=True):
 
 _DECODER = msgspec.json.Decoder(Body)
 NUMBER_FIELDS = ("position", "velocity", "timestamp")
-TEXT_FIELDS = ("sensor_id", "detection_id", "target", "vehicle_class")
+TEXT_FIELDS = ("sensor_id", "detection_id", "target")
 FEATURE_NUMBER_FIELDS = ("lane", "length")
 
 
@@ -63,8 +67,8 @@ def decode_rows(body: bytes) -> tuple[list[Row], bytes | None] | None:
 
 def row_columns(rows: list[Row]) -> dict[str, Any]:
     """The columns of well-formed rows as `Detections.from_columns` takes them: the numbers as
-    float arrays (NaN where a feature is not reported), the texts as lists of str and None, and
-    a feature reported by no row as None."""
+    float arrays (NaN where a feature is not reported), the texts as lists of str and None, the
+    vehicle classes coded (`CodedTexts`), and a feature reported by no row as None."""
     n = len(rows)
     columns: dict[str, Any] = {
         name: np.fromiter(map(attrgetter(name), rows), np.float64, n) for name in NUMBER_FIELDS
@@ -75,12 +79,16 @@ def row_columns(rows: list[Row]) -> dict[str, Any]:
         # None is NaN to numpy, and a JSON number never is: NaN is "not reported".
         values = np.fromiter(map(attrgetter(name), rows), np.float64, n)
         columns[name] = None if bool(np.isnan(values).all()) else values
-    if _none(columns["vehicle_class"]):
-        columns["vehicle_class"] = None
+    columns["vehicle_class"] = _coded_classes(rows)
     return columns
 
 
-def _none(values: list[Any]) -> bool:
-    """Whether every value is None (counted only when the first is: a column that some row
-    reports is most often reported by the first)."""
-    return values[0] is None and values.count(None) == len(values)
+def _coded_classes(rows: list[Row]) -> CodedTexts | None:
+    """The rows' vehicle classes as their distinct values and a code per row, numbered in order
+    of first appearance (one dict lookup a row, and no list of a `str` per row: a batch has a
+    handful of classes); None when no row reports one."""
+    index: defaultdict[str | None, int] = defaultdict(count().__next__)
+    classes = map(attrgetter("vehicle_class"), rows)
+    codes = np.fromiter(map(index.__getitem__, classes), np.intp, len(rows))
+    words = list(index)
+    return None if words == [None] else CodedTexts(words, codes)

@@ -24,7 +24,13 @@ from roadlink.association.columns import (
     RawColumn,
     float_column,
 )
-from roadlink.association.feature_columns import NO_LANE, class_column, lane_column, length_column
+from roadlink.association.feature_columns import (
+    NO_LANE,
+    CodedTexts,
+    class_column,
+    lane_column,
+    length_column,
+)
 
 CLUTTER = "clutter"
 """The reserved target label of a false alarm: a detection of no target."""
@@ -85,7 +91,7 @@ class Detections:
         target: Sequence[str | None] | None = None,
         lane: RawColumn | None = None,
         length: RawColumn | None = None,
-        vehicle_class: Sequence[str | None] | None = None,
+        vehicle_class: Sequence[str | None] | CodedTexts | None = None,
     ) -> Detections:
         """Validate raw columns and build detections.
 

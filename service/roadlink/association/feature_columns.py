@@ -8,6 +8,7 @@ detection. `Detections.from_columns` calls these; each lists what is wrong in `p
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -133,10 +134,29 @@ def _beyond_limit(values: FloatArray) -> bool:
 _JSON_NUMBER_TYPES = {int, float, type(None)}
 
 
+@dataclass(frozen=True)
+class CodedTexts:
+    """A text column as its distinct values (`words`, None among them where not reported) and
+    each row's index among them (`codes`): how a parser hands on a column of few values (a
+    batch's vehicle classes), so that each word is checked once and its `str` shared by its
+    rows."""
+
+    words: list[str | None]
+    codes: IntArray
+
+    def __len__(self) -> int:
+        return len(self.codes)
+
+
 def class_column(
-    n: int, given: Sequence[str | None] | None, problems: list[Problem]
+    n: int, given: Sequence[str | None] | CodedTexts | None, problems: list[Problem]
 ) -> ObjectArray:
     """Vehicle classes: short words, None where blank."""
+    if isinstance(given, CodedTexts):
+        words = np.array(given.words, dtype=object)
+        if _plain_classes(given.words):
+            return np.asarray(words[given.codes])
+        return class_column(n, words[given.codes].tolist(), problems)  # to name each problem
     out = np.full(n, None, dtype=object)
     if given is None:
         return out
