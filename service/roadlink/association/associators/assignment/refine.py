@@ -63,6 +63,7 @@ def refine_boundaries(
     gate = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
     edges = WindowEdges.of(s, model, gate.gate / 2.0)
     changed = False
+    judged: list[Judged] = []
     for k in range(1, n_sensors + 1):
         # Detections at sensor k - 1 got their final predecessor at the previous boundary.
         m = s.members(k - 1)
@@ -90,10 +91,37 @@ def refine_boundaries(
             prv[linked_b] = linked_a
             changed = changed or not np.array_equal(nxt[tails], was)
         if confidence is not None and not (tentative and changed):
-            chosen = nxt[pairs.a] == pairs.b
-            marginal = chosen_marginals(pairs.a, pairs.b, cost, chosen, params.gate_cost)
-            confidence[pairs.b[chosen]] = marginal[chosen]
+            judged.append((pairs, cost, nxt[pairs.a] == pairs.b))
+    if confidence is not None:
+        judge_links(confidence, judged, params.gate_cost)
     return tracks_from_links(s, prv, in_track), changed
+
+
+# A boundary's candidate links, their costs, and which of them the tracks keep.
+Judged = tuple[Pairs, FloatArray, BoolArray]
+
+
+def judge_links(confidence: FloatArray, judged: list[Judged], gate: float) -> None:
+    """Write into `confidence` how sure each kept link is against its rivals at each boundary
+    (`matching.chosen_marginals`), a link judged at several boundaries (one over a missed
+    detection) as at the last.
+
+    One call judges every boundary (numpy's fixed cost per call, over a dozen calls a boundary,
+    was most of a small sweep's judging): each boundary's nodes are numbered apart (boundary
+    times the number of detections, plus the detection), so no edge meets another boundary's,
+    and every sum runs over one boundary's edges in the order it would alone."""
+    if not judged:
+        return
+    n = confidence.size
+    left = np.concatenate([pairs.a + i * n for i, (pairs, _, _) in enumerate(judged)])
+    right = np.concatenate([pairs.b + i * n for i, (pairs, _, _) in enumerate(judged)])
+    chosen = np.concatenate([kept for _, _, kept in judged])
+    cost = np.concatenate([cost for _, cost, _ in judged])
+    marginal = chosen_marginals(left, right, cost, chosen, gate)[chosen]
+    b = right[chosen] % n
+    # The last judgement of each link: its first in reverse.
+    last = b.size - 1 - np.unique(b[::-1], return_index=True)[1]
+    confidence[b[last]] = marginal[last]
 
 
 @dataclass
