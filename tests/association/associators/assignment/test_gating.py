@@ -9,6 +9,7 @@ import pytest
 from roadlink.association.associators.assignment import AssignmentParams, Tails, gating
 from roadlink.association.associators.assignment.gating import (
     EverySensor,
+    Gate,
     Pairs,
     gated_pairs,
     time_residual,
@@ -155,6 +156,25 @@ def test_every_sensors_links_gated_at_once_are_those_gated_sensor_by_sensor(amon
         assert one.a.size > 0
         for name in ("a", "b", "r_time", "ratio", "speed_spread", "span"):
             assert np.array_equal(getattr(at_once, name), getattr(one, name))
+
+
+def test_the_links_across_a_boundary_gated_at_once_are_those_gated_sensor_by_sensor():
+    # To the last bit, in the same order: the run of every sensor's links filtered (a paper-size
+    # batch) against each sensor's links gated from the tails within its reach.
+    rng = np.random.default_rng(7)
+    s = arrange(three_sensors(rng, 15), PARAMS)
+    model = kinematic_model(3, PARAMS, tails=Tails(0.05, 4.0))
+    at_once = Gate.of(s, model, PARAMS, 2.0 * PARAMS.gate_cost)
+    one_by_one = Gate(s, model, PARAMS, 2.0 * PARAMS.gate_cost)
+    assert at_once.every is not None
+    heads = rng.random(45) < 0.7
+    for k in (1, 2):
+        tails = s.order[: s.start[k]][rng.random(int(s.start[k])) < 0.6]
+        expected = one_by_one.across(k, tails, heads)
+        found = at_once.across(k, tails, heads)
+        assert expected.a.size > 0
+        for name in ("a", "b", "r_time", "ratio", "speed_spread", "span"):
+            assert np.array_equal(getattr(found, name), getattr(expected, name))
 
 
 @pytest.mark.parametrize("among", [False, True])

@@ -341,6 +341,16 @@ class EverySensor:
             return Pairs.none()
         return self.pairs.take(lo + kept[np.argsort(order[kept], kind="stable")])
 
+    def across(self, k: int, end: int, tails: IntArray, among: BoolArray) -> Pairs:
+        """`into(q, tails, among)` for every q from k to end - 1, one after another, where the
+        `tails` lie before sensor k in s.order's order: the links into those sensors are already
+        by departure in that order, so they are one run of `pairs`, filtered."""
+        lo, hi = int(self.bounds[k]), int(self.bounds[end])
+        is_tail = np.zeros(self.detections, dtype=bool)
+        is_tail[tails] = True
+        keep = is_tail[self.pairs.a[lo:hi]] & among[self.pairs.b[lo:hi]]
+        return self.pairs.take(lo + np.flatnonzero(keep))
+
 
 @dataclass
 class Gate:
@@ -364,3 +374,16 @@ class Gate:
         if self.every is None:
             return gated_pairs(self.s, self.model, self.params, a, q, self.gate, among)
         return self.every.into(q, a, among)
+
+    def across(self, k: int, tails: IntArray, among: BoolArray) -> Pairs:
+        """The links from `tails` (detections before sensor k, in s.order's order) to those
+        `among` the detections of sensors k to k + max_skip: `pairs` from the tails within reach
+        of each sensor, sensor after sensor (at once, from every sensor's links gated at once)."""
+        reach = self.params.max_skip + 1
+        end = min(k + reach, self.s.positions.size)
+        if self.every is not None:
+            return self.every.across(k, end, tails, among)
+        sensor = self.s.sensor[tails]
+        return Pairs.concatenate(
+            [self.pairs(tails[sensor >= q - reach], q, among) for q in range(k, end)]
+        )

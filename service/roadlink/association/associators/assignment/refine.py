@@ -208,18 +208,15 @@ def ends_at_boundary(
     alone (None when either side has none)."""
     reach = params.max_skip + 1
     n_sensors = s.positions.size
-    before = np.concatenate([s.members(q) for q in range(max(0, k - reach), k)])
+    # The detections of the sensors before k, and of those from k on: runs of s.order.
+    before = s.order[s.start[max(0, k - reach)] : s.start[k]]
     tails = before[
         in_track[before] & ((nxt[before] < 0) | (s.sensor[np.maximum(nxt[before], 0)] >= k))
     ]
-    after = np.concatenate([s.members(q) for q in range(k, min(n_sensors, k + reach))])
+    after = s.order[s.start[k] : s.start[min(n_sensors, k + reach)]]
     heads = after[in_track[after] & ((prv[after] < 0) | (s.sensor[np.maximum(prv[after], 0)] < k))]
     if tails.size == 0 or heads.size == 0:
         return None
     is_head = np.zeros(s.time.size, dtype=bool)
     is_head[heads] = True
-    found: list[Pairs] = []
-    for q in range(k, min(k + reach, n_sensors)):
-        near = tails[s.sensor[tails] >= q - reach]
-        found.append(gate.pairs(near, q, among=is_head))
-    return tails, Pairs.concatenate(found)
+    return tails, gate.across(k, tails, is_head)
