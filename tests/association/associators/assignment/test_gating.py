@@ -114,6 +114,14 @@ def test_pairs_are_taken_and_concatenated_field_by_field():
     both = Pairs.concatenate([second, pairs.take(np.array([True, False]))])
     assert both.b.tolist() == [2, 1] and both.span.tolist() == [1, 1]
     assert Pairs.none().a.size == Pairs.none().r_time.size == 0
+    # Their own costs, worked out once, go with them, and are what each would cost alone.
+    model = kinematic_model(2, PARAMS)
+    alone = [pairs.take(np.array([i])).own_cost(model, PARAMS)[0] for i in (0, 1)]
+    pairs.own = pairs.own_cost(model, PARAMS)
+    assert pairs.own.tolist() == alone
+    assert pairs.take(np.array([1])).own.tolist() == [pairs.own[1]]
+    assert Pairs.concatenate([pairs, pairs]).own.tolist() == 2 * pairs.own.tolist()
+    assert Pairs.concatenate([pairs, second]).own is None  # not every part has them
 
 
 def three_sensors(rng: np.random.Generator, n: int) -> Detections:

@@ -43,7 +43,6 @@ def link_cost(
 
     `before` is the mean relative speed (and its number of detections) of the track ending in a,
     `after` that of the track starting with b (b alone, when linking sensor by sensor)."""
-    r_speed = pairs.ratio / pairs.speed_spread
     # A driver keeps a preferred speed relative to the traffic around: compare the speeds,
     # relative to their sensors' typical speed, of the two track pieces the link would join.
     # Speed fluctuations are correlated over several sensors, so a mean over many detections is
@@ -53,9 +52,9 @@ def link_cost(
         1.0 / np.minimum(before.count, memory) + 1.0 / np.minimum(after.count, memory)
     )
     r_level = (after.mean - before.mean) / level_spread
+    # The travel-time error's cost and the weighed speed change's (`Pairs.own_cost`), then:
     cost = (
-        model.time_tails.cost(pairs.r_time)
-        + params.velocity_change_weight * model.speed_tails.cost(r_speed)
+        pairs.own_cost(model, params)
         + params.preferred_speed_weight * model.level_tails.cost(r_level)
         + params.miss_cost * (pairs.span - 1)
     )

@@ -19,7 +19,9 @@ BoolArray = npt.NDArray[np.bool_]
 @dataclass
 class Pairs:
     """Candidate links a -> b with what their cost needs: the standardised travel-time error, the
-    unexplained log speed change, the segment's speed spread, and the number of sensors spanned.
+    unexplained log speed change, the segment's speed spread, and the number of sensors spanned;
+    and, where a pass worked it out for all its links at once, what each costs on its own
+    (`own_cost`).
     """
 
     a: IntArray
@@ -28,6 +30,7 @@ class Pairs:
     ratio: FloatArray
     speed_spread: FloatArray
     span: IntArray
+    own: FloatArray | None = None
 
     def take(self, keep: BoolArray | IntArray) -> Pairs:
         return Pairs(
@@ -37,13 +40,29 @@ class Pairs:
             self.ratio[keep],
             self.speed_spread[keep],
             self.span[keep],
+            None if self.own is None else self.own[keep],
         )
 
     @classmethod
     def concatenate(cls, parts: list[Pairs]) -> Pairs:
+        own = [p.own for p in parts if p.own is not None]
         return cls(
-            *(np.concatenate([getattr(p, field.name) for p in parts]) for field in fields(cls))
+            **{
+                field.name: np.concatenate([getattr(p, field.name) for p in parts])
+                for field in fields(cls)
+                if field.name != "own"  # which some parts may lack
+            },
+            own=np.concatenate(own) if len(own) == len(parts) else None,
         )
+
+    def own_cost(self, model: SegmentModel, params: AssignmentParams) -> FloatArray:
+        """The terms of `costs.link_cost` that depend on the link alone, not on the tracks it
+        joins: the travel-time error's cost plus the weighed speed change's."""
+        if self.own is not None:
+            return self.own
+        time_cost = model.time_tails.cost(self.r_time)
+        speed_cost = model.speed_tails.cost(self.ratio / self.speed_spread)
+        return time_cost + params.velocity_change_weight * speed_cost
 
     @classmethod
     def none(cls) -> Pairs:
@@ -325,6 +344,9 @@ class EverySensor:
                 np.searchsorted(times, hi[towards], side="right") - start, 0
             )
         pairs = _within_gate(s, model, params, d, None, first, count, gate)
+        # Each link's own cost, once for the pass (numpy's fixed cost per call, not the links,
+        # is a paper-size batch's work: a dozen calls for every sensor otherwise).
+        pairs.own = pairs.own_cost(model, params)
         return cls(pairs, np.searchsorted(s.sensor[pairs.b], np.arange(n_sensors + 1)), n)
 
     def into(self, q: int, a: IntArray, among: BoolArray | None = None) -> Pairs:
