@@ -10,6 +10,7 @@ from roadlink.association.associators.assignment.robust import (
     centre_and_spread,
     column_medians,
     median,
+    run_medians,
     runs,
     spread_about,
 )
@@ -78,3 +79,23 @@ def test_the_spread_about_the_median_is_centre_and_spreads() -> None:
     values = np.random.default_rng(1).standard_t(3, size=101)
     centre, spread = centre_and_spread(values)
     assert spread_about(values, centre) == spread
+
+
+def test_the_medians_of_runs_side_by_side_are_each_runs_own() -> None:
+    # To the last bit: short and long runs, odd and even, ties, one column or several.
+    rng = np.random.default_rng(2)
+    sizes = np.array([1, 2, 3, 10, SHORT_ARRAY + 1, 200])
+    starts = np.cumsum(sizes) - sizes
+    values = np.round(rng.normal(size=(sizes.sum(), 4)), 2)
+    found = run_medians(values[:, 0], sizes)
+    assert found is not None
+    assert found.tolist() == [
+        median(values[i : i + n, 0]) for i, n in zip(starts, sizes, strict=True)
+    ]
+    columns = run_medians(values, sizes)
+    assert columns is not None
+    for i, (start, n) in enumerate(zip(starts, sizes, strict=True)):
+        assert np.array_equal(columns[i], column_medians(values[start : start + n]))
+    # Left to the caller, run by run: a value not finite, a median of zero (its sign).
+    assert run_medians(np.array([1.0, np.nan, 2.0]), np.array([1, 2])) is None
+    assert run_medians(np.array([1.0, -0.0, 0.0]), np.array([1, 2])) is None

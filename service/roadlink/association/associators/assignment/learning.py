@@ -24,11 +24,12 @@ from roadlink.association.associators.assignment.params import (
     AssignmentParams,
 )
 from roadlink.association.associators.assignment.robust import (
+    MAD_TO_STD,
     centre_and_spread,
     column_medians,
     median,
+    run_medians,
     runs,
-    spread_about,
 )
 from roadlink.association.associators.assignment.sensors import (
     KINEMATIC_SKEW,
@@ -125,11 +126,11 @@ def learn_span(
     weight = counts / (counts + params.min_segment_samples)
     skew = np.full(s.positions.size, KINEMATIC_SKEW)
     segment = runs(p, counts)
-    for k in np.flatnonzero(counts):
-        # best_skew's own even sample, taken before the gathers (it then samples no further).
-        here = segment[k][:: max(1, segment[k].size // SKEW_SAMPLE)]
-        learned = best_skew(dt[here], dx[here], s.speed[a[here]], s.speed[b[here]])
-        skew[k] = KINEMATIC_SKEW + weight[k] * (learned - KINEMATIC_SKEW)
+    seen = np.flatnonzero(counts)
+    # best_skew's own even sample, taken before the gathers (it then samples no further).
+    here = [segment[k][:: max(1, segment[k].size // SKEW_SAMPLE)] for k in seen]
+    learned = best_skews(dt, dx, s.speed[a], s.speed[b], here)
+    skew[seen] = KINEMATIC_SKEW + weight[seen] * (learned - KINEMATIC_SKEW)
     model.skew[:, span] = skew
     log_bias = np.log(dt / travel_time(dx, s.speed[a], s.speed[b], skew[p]))
     ratio = s.log_speed[b] - s.log_speed[a]
@@ -151,20 +152,21 @@ def learn_centres_and_spreads(
     prior's by precision (the prior is a rough guess, so a handful of links overrule it)."""
     n_sensors = counts.size
     seen = np.flatnonzero(counts)
+    segment = runs(p, counts)
     bias_centre = np.zeros(n_sensors)
     ratio_centre = np.zeros(n_sensors)
-    segment = runs(p, counts)
-    for k in seen:
-        bias_centre[k] = median(log_bias[segment[k]])
-        ratio_centre[k] = median(ratio[segment[k]])
+    bias_centre[seen] = segment_medians(log_bias, segment, seen)
+    ratio_centre[seen] = segment_medians(ratio, segment, seen)
     # Spreads pooled over all segments, each residual taken from its own segment's median.
     pooled_time = centre_and_spread(log_bias - bias_centre[p])[1]
     pooled_speed = centre_and_spread(ratio - ratio_centre[p])[1]
-    for k in seen:
-        here = segment[k]
+    # Each segment's own: the median absolute deviation from its median (`spread_about`).
+    time_mad = segment_medians(np.abs(log_bias - bias_centre[p]), segment, seen)
+    speed_mad = segment_medians(np.abs(ratio - ratio_centre[p]), segment, seen)
+    for i, k in enumerate(seen.tolist()):
         w, n_k = weight[k], counts[k]
-        own_time = spread_about(log_bias[here], bias_centre[k])
-        own_speed = spread_about(ratio[here], ratio_centre[k])
+        own_time = MAD_TO_STD * float(time_mad[i])
+        own_speed = MAD_TO_STD * float(speed_mad[i])
         time_spread = np.sqrt(w * own_time**2 + (1 - w) * pooled_time**2)
         speed_spread = np.sqrt(w * own_speed**2 + (1 - w) * pooled_speed**2)
         model.log_bias[k, span] = posterior_centre(
@@ -182,6 +184,17 @@ def learn_centres_and_spreads(
     unseen = counts == 0
     model.time_spread[unseen, span] = pooled_time
     model.speed_spread[unseen, span] = pooled_speed
+
+
+def segment_medians(values: FloatArray, segment: list[IntArray], seen: IntArray) -> FloatArray:
+    """The median of `values` over each segment seen (`median` of each, at once where
+    `robust.run_medians` can)."""
+    members = [segment[k] for k in seen]
+    sizes = np.array([m.size for m in members], dtype=np.int64)
+    at_once = run_medians(values[np.concatenate(members)], sizes) if members else None
+    if at_once is not None:
+        return at_once
+    return np.array([median(values[m]) for m in members], dtype=np.float64)
 
 
 def pace_deviations(s: Sensors, track: IntArray, confident: IntArray) -> FloatArray:
@@ -215,6 +228,45 @@ def learn_tails(
         model.level_tails = Tails.fit(deviation / model.preferred_speed_spread, model.level_tails)
 
 
+def best_skews(
+    dt: FloatArray, dx: FloatArray, speed_a: FloatArray, speed_b: FloatArray, here: list[IntArray]
+) -> FloatArray:
+    """`best_skew` of each segment's links (`here`, indices into the links' arrays), with the
+    medians of all the segments with enough links from one sort (`robust.run_medians`)."""
+    learned = np.full(len(here), KINEMATIC_SKEW)
+    some = [i for i, h in enumerate(here) if h.size >= SKEW_MIN_LINKS]
+    if not some:
+        return learned
+    at = np.concatenate([here[i] for i in some])
+    sizes = np.array([here[i].size for i in some], dtype=np.int64)
+    errors = skew_errors(dt[at], dx[at], speed_a[at], speed_b[at])
+    centre = run_medians(errors, sizes)
+    spread = (
+        None if centre is None else run_medians(np.abs(errors - np.repeat(centre, sizes, 0)), sizes)
+    )
+    if spread is None:
+        for i in some:
+            learned[i] = best_skew(dt[here[i]], dx[here[i]], speed_a[here[i]], speed_b[here[i]])
+        return learned
+    best = np.argmin(spread, axis=1)
+    # The symmetric prediction stands unless another share is clearly better (`best_skew`).
+    symmetric = spread[:, SKEW_GRID.size // 2]
+    margin = symmetric * (1.0 - SKEW_SIGNIFICANCE / np.sqrt(sizes))
+    unclear = spread[np.arange(sizes.size), best] > margin
+    learned[some] = np.where(unclear, KINEMATIC_SKEW, SKEW_GRID[best])
+    return learned
+
+
+def skew_errors(
+    dt: FloatArray, dx: FloatArray, speed_a: FloatArray, speed_b: FloatArray
+) -> FloatArray:
+    """log(travel time / its prediction) of each link (a row) at each skew of SKEW_GRID."""
+    pace_a = (dx / speed_a)[:, None]
+    pace_b = (dx / speed_b)[:, None]
+    errors: FloatArray = np.log(dt[:, None] / ((1.0 - SKEW_GRID) * pace_a + SKEW_GRID * pace_b))
+    return errors
+
+
 def best_skew(dt: FloatArray, dx: FloatArray, speed_a: FloatArray, speed_b: FloatArray) -> float:
     """The share w of a segment's travel time best predicted from its far end's speed:
     travel = bias * dx * ((1 - w) / v_a + w / v_b) with the least robust spread of log errors.
@@ -225,9 +277,7 @@ def best_skew(dt: FloatArray, dx: FloatArray, speed_a: FloatArray, speed_b: Floa
     # An even sample of a few hundred links pins the skew as well as all of them would.
     step = max(1, dt.size // SKEW_SAMPLE)
     dt, dx, speed_a, speed_b = dt[::step], dx[::step], speed_a[::step], speed_b[::step]
-    pace_a = (dx / speed_a)[:, None]
-    pace_b = (dx / speed_b)[:, None]
-    errors = np.log(dt[:, None] / ((1.0 - SKEW_GRID) * pace_a + SKEW_GRID * pace_b))
+    errors = skew_errors(dt, dx, speed_a, speed_b)
     centred = errors - column_medians(errors)
     spread = column_medians(np.abs(centred))
     best = int(np.argmin(spread))

@@ -60,6 +60,32 @@ def column_medians(values: FloatArray) -> FloatArray:
     return middle
 
 
+def run_medians(values: FloatArray, sizes: IntArray) -> FloatArray | None:
+    """The medians (of each column, for 2-D values) of consecutive runs of `values`' rows, run i
+    `sizes[i]` rows long (at least one): `median` (or `column_medians`) of each run, the same
+    numbers, from one sort of all the runs side by side, each padded with +inf (sorted last).
+    None where a value is not finite or a median is zero (`median` then defers to numpy, whose
+    sign of zero may differ), for the caller to take the runs one by one.
+
+    A paper-size batch has a few dozen short runs: numpy's fixed cost per call, run after run,
+    was the work."""
+    if not np.isfinite(values).all():
+        return None
+    n_runs = sizes.size
+    row = np.arange(values.shape[0]) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+    padded = np.full((n_runs, int(sizes.max()), *values.shape[1:]), np.inf)
+    padded[np.repeat(np.arange(n_runs), sizes), row] = values
+    padded.sort(axis=1)
+    mid = sizes // 2
+    upper = padded[np.arange(n_runs), mid]
+    lower = padded[np.arange(n_runs), np.maximum(mid - 1, 0)]
+    odd = (sizes % 2 == 1).reshape(-1, *([1] * (values.ndim - 1)))
+    middle: FloatArray = np.where(odd, upper, (lower + upper) / 2.0)
+    if (middle == 0.0).any():
+        return None
+    return middle
+
+
 def runs(keys: IntArray, counts: IntArray) -> list[IntArray]:
     """For every key 0, 1, ...: where it occurs in `keys` (whose bincount is `counts`), in
     order; the same as np.flatnonzero(keys == k) for each k, by one stable sort."""
