@@ -153,20 +153,20 @@ def learn_centres_and_spreads(
     n_sensors = counts.size
     seen = np.flatnonzero(counts)
     segment = runs(p, counts)
-    bias_centre = np.zeros(n_sensors)
-    ratio_centre = np.zeros(n_sensors)
-    bias_centre[seen] = segment_medians(log_bias, segment, seen)
-    ratio_centre[seen] = segment_medians(ratio, segment, seen)
+    # The two residuals side by side: each segment's medians of both from one sort.
+    residual = np.stack([log_bias, ratio], axis=1)
+    centre = np.zeros((n_sensors, 2))
+    centre[seen] = segment_medians(residual, segment, seen)
+    bias_centre, ratio_centre = centre[:, 0], centre[:, 1]
     # Spreads pooled over all segments, each residual taken from its own segment's median.
     pooled_time = centre_and_spread(log_bias - bias_centre[p])[1]
     pooled_speed = centre_and_spread(ratio - ratio_centre[p])[1]
     # Each segment's own: the median absolute deviation from its median (`spread_about`).
-    time_mad = segment_medians(np.abs(log_bias - bias_centre[p]), segment, seen)
-    speed_mad = segment_medians(np.abs(ratio - ratio_centre[p]), segment, seen)
+    mad = segment_medians(np.abs(residual - centre[p]), segment, seen)
     for i, k in enumerate(seen.tolist()):
         w, n_k = weight[k], counts[k]
-        own_time = MAD_TO_STD * float(time_mad[i])
-        own_speed = MAD_TO_STD * float(speed_mad[i])
+        own_time = MAD_TO_STD * float(mad[i, 0])
+        own_speed = MAD_TO_STD * float(mad[i, 1])
         time_spread = np.sqrt(w * own_time**2 + (1 - w) * pooled_time**2)
         speed_spread = np.sqrt(w * own_speed**2 + (1 - w) * pooled_speed**2)
         model.log_bias[k, span] = posterior_centre(
@@ -187,14 +187,16 @@ def learn_centres_and_spreads(
 
 
 def segment_medians(values: FloatArray, segment: list[IntArray], seen: IntArray) -> FloatArray:
-    """The median of `values` over each segment seen (`median` of each, at once where
-    `robust.run_medians` can)."""
+    """The median of each column of `values` (one row a link) over each segment seen: `median`
+    of each, at once where `robust.run_medians` can."""
     members = [segment[k] for k in seen]
     sizes = np.array([m.size for m in members], dtype=np.int64)
     at_once = run_medians(values[np.concatenate(members)], sizes) if members else None
     if at_once is not None:
         return at_once
-    return np.array([median(values[m]) for m in members], dtype=np.float64)
+    return np.array(
+        [[median(column) for column in values[m].T] for m in members], dtype=np.float64
+    ).reshape(len(members), values.shape[1])
 
 
 def pace_deviations(s: Sensors, track: IntArray, confident: IntArray) -> FloatArray:
