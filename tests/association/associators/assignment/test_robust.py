@@ -12,6 +12,7 @@ from roadlink.association.associators.assignment.robust import (
     median,
     run_medians,
     runs,
+    spread,
     spread_about,
 )
 
@@ -99,3 +100,13 @@ def test_the_medians_of_runs_side_by_side_are_each_runs_own() -> None:
     # Left to the caller, run by run: a value not finite, a median of zero (its sign).
     assert run_medians(np.array([1.0, np.nan, 2.0]), np.array([1, 2])) is None
     assert run_medians(np.array([1.0, -0.0, 0.0]), np.array([1, 2])) is None
+
+
+@pytest.mark.parametrize("n", [5, SHORT_ARRAY + 1, 301])
+def test_the_spread_alone_is_centre_and_spreads_even_about_a_median_of_zero(n: int) -> None:
+    values = np.random.default_rng(n).normal(size=n)
+    values[: n // 2 + 1 : 2] = 0.0  # a median of exactly zero
+    values[1 : n // 2 + 1 : 2] = -0.0
+    assert spread(values) == centre_and_spread(values)[1]
+    values[0] = np.nan
+    assert np.isnan(spread(values)) == np.isnan(centre_and_spread(values)[1])

@@ -25,11 +25,11 @@ from roadlink.association.associators.assignment.params import (
 )
 from roadlink.association.associators.assignment.robust import (
     MAD_TO_STD,
-    centre_and_spread,
     column_medians,
     median,
     run_medians,
     runs,
+    spread,
 )
 from roadlink.association.associators.assignment.sensors import (
     KINEMATIC_SKEW,
@@ -66,7 +66,7 @@ def learn_segments(
         learn_span(s, params, model, span, a, b)
     deviation = pace_deviations(s, track, confident)
     if deviation.size:
-        model.preferred_speed_spread = centre_and_spread(deviation)[1]
+        model.preferred_speed_spread = spread(deviation)
     model.preferred_speed_spread = max(model.preferred_speed_spread, MIN_RELATIVE_SPREAD)
     np.maximum(model.time_spread, MIN_RELATIVE_SPREAD, out=model.time_spread)
     np.maximum(model.speed_spread, MIN_RELATIVE_SPREAD, out=model.speed_spread)
@@ -159,8 +159,8 @@ def learn_centres_and_spreads(
     centre[seen] = segment_medians(residual, segment, seen)
     bias_centre, ratio_centre = centre[:, 0], centre[:, 1]
     # Spreads pooled over all segments, each residual taken from its own segment's median.
-    pooled_time = centre_and_spread(log_bias - bias_centre[p])[1]
-    pooled_speed = centre_and_spread(ratio - ratio_centre[p])[1]
+    pooled_time = spread(log_bias - bias_centre[p])
+    pooled_speed = spread(ratio - ratio_centre[p])
     # Each segment's own: the median absolute deviation from its median (`spread_about`).
     mad = segment_medians(np.abs(residual - centre[p]), segment, seen)
     for i, k in enumerate(seen.tolist()):

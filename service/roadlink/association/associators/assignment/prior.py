@@ -25,7 +25,7 @@ from roadlink.association.associators.assignment.params import (
     PRIOR_TEST_SAMPLE,
     AssignmentParams,
 )
-from roadlink.association.associators.assignment.robust import centre_and_spread, median
+from roadlink.association.associators.assignment.robust import median, spread
 from roadlink.association.associators.assignment.sensors import (
     KINEMATIC_SKEW,
     Sensors,
@@ -110,8 +110,8 @@ def travel_time_prior(s: Sensors, a: IntArray, q: int) -> float:
     # relative to their sensors' typical speeds, agree hold most true pairs and few unrelated
     # ones; but not where every driver brakes to a speed of its own: both selections are tried.
     change = s.relative_speed[pairs.pb] - s.relative_speed[pairs.pa]
-    spread = centre_and_spread(s.relative_speed[s.members(q)])[1]
-    agree = np.abs(change) <= PRIOR_AGREEMENT * spread
+    relative_spread = spread(s.relative_speed[s.members(q)])
+    agree = np.abs(change) <= PRIOR_AGREEMENT * relative_spread
     best, best_significance = 0.0, -np.inf
     for keep in (agree, every):
         centre, significance = pairs.bias(keep)

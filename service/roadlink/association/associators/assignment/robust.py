@@ -19,13 +19,10 @@ def median(values: npt.ArrayLike) -> float:
     n = array.size
     mid = n // 2
     if n > SHORT_ARRAY:
-        # One partition at the middle (numpy's vectorised one takes a single index: a sixth
-        # of np.median's time, whose partition takes three), then the lower half's largest.
-        part = np.partition(array, mid)
-        middle = float(part[mid]) if n % 2 else float((part[:mid].max() + part[mid]) / 2.0)
+        middle = _partitioned_middle(array)
         # Which of several zeros (or NaNs) is the middle one depends on the partition: numpy's
         # own answer there, with its sign of zero.
-        if middle == 0.0 or np.isnan(part[mid:]).any():
+        if middle is None or middle == 0.0:
             return float(np.median(array))
         return middle
     if n == 0:
@@ -34,10 +31,35 @@ def median(values: npt.ArrayLike) -> float:
     return ordered[mid] if n % 2 else 0.5 * (ordered[mid - 1] + ordered[mid])
 
 
+def _partitioned_middle(array: FloatArray) -> float | None:
+    """The middle value of a long array (the mean of the two middle ones): one partition at the
+    middle (numpy's vectorised one takes a single index: a sixth of np.median's time, whose
+    partition takes three), then the lower half's largest. Of several zeros, whichever the
+    partition puts there; None where there are NaNs."""
+    n = array.size
+    mid = n // 2
+    part = np.partition(array, mid)
+    if np.isnan(part[mid:]).any():
+        return None
+    return float(part[mid]) if n % 2 else float((part[:mid].max() + part[mid]) / 2.0)
+
+
 def centre_and_spread(values: FloatArray) -> tuple[float, float]:
     """Median and normal-consistent MAD."""
     centre = float(median(values))
     return centre, MAD_TO_STD * float(median(np.abs(values - centre)))
+
+
+def spread(values: FloatArray) -> float:
+    """`centre_and_spread`'s spread, the same number, without numpy's median where the middle
+    value is zero (`median` asks numpy for its sign, at several times the cost): a zero's sign
+    changes no absolute deviation from it. Residuals from segments' own medians (odd segments
+    leave an exact zero each) often have a median of exactly zero."""
+    array = np.asarray(values, dtype=np.float64).reshape(-1)
+    centre = _partitioned_middle(array) if array.size > SHORT_ARRAY else None
+    if centre is None:
+        return centre_and_spread(array)[1]
+    return MAD_TO_STD * float(median(np.abs(array - centre)))
 
 
 def spread_about(values: FloatArray, centre: float) -> float:
