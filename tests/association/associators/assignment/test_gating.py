@@ -11,6 +11,7 @@ from roadlink.association.associators.assignment.gating import (
     EverySensor,
     Gate,
     Pairs,
+    _arrivals_between,
     gated_pairs,
     time_residual,
 )
@@ -183,6 +184,24 @@ def test_the_links_across_a_boundary_gated_at_once_are_those_gated_sensor_by_sen
         assert expected.a.size > 0
         for name in ("a", "b", "r_time", "ratio", "speed_spread", "span"):
             assert np.array_equal(getattr(found, name), getattr(expected, name))
+
+
+def test_the_arrivals_within_every_window_at_once_are_each_sensors_own_searchsorted():
+    # Windows whose ends fall on arrival times: the left end keeps them, the right end too.
+    rng = np.random.default_rng(8)
+    s = arrange(three_sensors(rng, 30), PARAMS)
+    s.sorted_time[:] = np.round(s.sorted_time)  # ties, and ends on them
+    for k in range(3):
+        s.sorted_time[s.start[k] : s.start[k + 1]].sort()
+    q = rng.integers(1, 3, 50)
+    lo = np.round(rng.uniform(0.0, 220.0, 50))
+    hi = lo + rng.integers(-2, 20, 50)
+    first, count = _arrivals_between(s, q, lo, hi)
+    for i in range(50):
+        times = s.sorted_time[s.start[q[i]] : s.start[q[i] + 1]]
+        start = np.searchsorted(times, lo[i], side="left")
+        assert first[i] == s.start[q[i]] + start
+        assert count[i] == max(np.searchsorted(times, hi[i], side="right") - start, 0)
 
 
 @pytest.mark.parametrize("among", [False, True])

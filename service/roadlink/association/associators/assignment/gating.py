@@ -322,27 +322,12 @@ class EverySensor:
         cls, s: Sensors, model: SegmentModel, params: AssignmentParams, gate: float
     ) -> EverySensor:
         n, n_sensors = s.time.size, s.positions.size
-        reach = params.max_skip + 1
-        a = np.tile(s.order, reach)
-        q = s.sensor[a] + np.repeat(np.arange(1, reach + 1), n)
-        by = np.lexsort((np.tile(np.arange(n), reach), q))
-        by = by[q[by] < n_sensors]
-        a, q = a[by], q[by]
+        a, q = s.reaching(params.max_skip + 1)
         d = Departures.towards(s, model, a, q)
         fastest = np.minimum.reduceat(s.sorted_inverse_speed, s.start[:-1])[q]
         slowest = np.maximum.reduceat(s.sorted_inverse_speed, s.start[:-1])[q]
         lo, hi = _arrival_window(s, model, params, d, q, gate, fastest, slowest)
-        first = np.zeros(a.size, dtype=np.int64)
-        count = np.zeros(a.size, dtype=np.int64)
-        departures = np.searchsorted(q, np.arange(n_sensors + 1))
-        for k in range(1, n_sensors):
-            towards = slice(departures[k], departures[k + 1])
-            times = s.sorted_time[s.start[k] : s.start[k + 1]]
-            start = np.searchsorted(times, lo[towards], side="left")
-            first[towards] = s.start[k] + start
-            count[towards] = np.maximum(
-                np.searchsorted(times, hi[towards], side="right") - start, 0
-            )
+        first, count = _arrivals_between(s, q, lo, hi)
         pairs = _within_gate(s, model, params, d, None, first, count, gate)
         # Each link's own cost, once for the pass (numpy's fixed cost per call, not the links,
         # is a paper-size batch's work: a dozen calls for every sensor otherwise).
@@ -372,6 +357,26 @@ class EverySensor:
         is_tail[tails] = True
         keep = is_tail[self.pairs.a[lo:hi]] & among[self.pairs.b[lo:hi]]
         return self.pairs.take(lo + np.flatnonzero(keep))
+
+
+def _arrivals_between(
+    s: Sensors, q: IntArray, lo: FloatArray, hi: FloatArray
+) -> tuple[IntArray, IntArray]:
+    """For each window [lo, hi] at sensor q: the place in s.order of its first arrival, and how
+    many arrive within it; `searchsorted` in each sensor's times (left at lo, right at hi), for
+    every sensor at once by one stable sort of the arrivals and the window's ends together, keyed
+    by (sensor, time, lo before an equal time, hi after it): each end's place among the sorted
+    arrivals is the number of arrivals before it."""
+    n, m = s.time.size, q.size
+    sensor = np.concatenate([s.sensor[s.order], q, q])
+    time = np.concatenate([s.sorted_time, lo, hi])
+    side = np.repeat(np.array([1, 0, 2], dtype=np.int8), [n, m, m])
+    merged = np.lexsort((side, time, sensor))
+    arrival = merged < n
+    place = np.empty(n + 2 * m, dtype=np.int64)
+    place[merged] = np.cumsum(arrival) - arrival  # the arrivals before each
+    first = place[n : n + m]
+    return first, np.maximum(place[n + m :] - first, 0)
 
 
 @dataclass

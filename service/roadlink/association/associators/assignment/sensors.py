@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -48,6 +48,7 @@ class Sensors:
     top_speed: FloatArray  # the fastest speed measured at each sensor
     median_speed: FloatArray  # the median (floored) speed at each sensor
     features: SensorFeatures | None = None  # lane, length, class, where detectors report them
+    _reaching: dict[int, tuple[IntArray, IntArray]] = field(default_factory=dict, repr=False)
 
     def members(self, k: int) -> IntArray:
         return self.order[self.start[k] : self.start[k + 1]]
@@ -61,6 +62,19 @@ class Sensors:
     def last_time(self) -> FloatArray:
         """Each sensor's last detection time: where the batch's window closes for it."""
         return self.sorted_time[self.start[1:] - 1]
+
+    def reaching(self, reach: int) -> tuple[IntArray, IntArray]:
+        """Every detection with each of the `reach` sensors after it (those there are), by that
+        sensor, then by detection as in `order`: the detections, and the sensors. Worked out
+        once a batch: every pass that gates all the links at once (`gating.EverySensor`) asks."""
+        if reach not in self._reaching:
+            n = self.time.size
+            a = np.tile(self.order, reach)
+            q = self.sensor[a] + np.repeat(np.arange(1, reach + 1), n)
+            by = np.lexsort((np.tile(np.arange(n), reach), q))
+            by = by[q[by] < self.positions.size]
+            self._reaching[reach] = a[by], q[by]
+        return self._reaching[reach]
 
     def by_track(self, detections: IntArray, track: IntArray) -> IntArray:
         """The detections (each in a track) sorted by track, then sensor: the order of
