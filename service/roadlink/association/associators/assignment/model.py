@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -94,14 +95,23 @@ class Tails:
         w, s = prior.weight, prior.scale
         weight_tolerance, scale_tolerance = TAIL_EM_TOLERANCE
         half = 0.5 * z2
+        # The same numbers as written out plainly, in place: on a paper-size batch the dozen
+        # numpy calls of each of a few dozen iterations are the work. The tail's half / s^2 is
+        # kept while s stays (at TAIL_MIN_SCALE, mostly).
+        core, tail = np.empty_like(half), np.empty_like(half)
+        scaled, scaled_by = half / (s * s), s
         for _ in range(TAIL_EM_ITERATIONS):
             before = (w, s)
-            core = np.log1p(-w) - half
-            tail = np.log(w / s) - half / (s * s)
-            share = np.exp(tail - np.logaddexp(core, tail))
+            np.subtract(np.log1p(-w), half, out=core)
+            if s != scaled_by:
+                scaled, scaled_by = half / (s * s), s
+            np.subtract(np.log(w / s), scaled, out=tail)
+            share = np.logaddexp(core, tail, out=core)
+            np.subtract(tail, share, out=share)
+            np.exp(share, out=share)
             total = float(share.sum())
             w = min(max(total / z2.size, TAIL_WEIGHT_RANGE[0]), TAIL_WEIGHT_RANGE[1])
-            s = float(np.sqrt(float(share @ z2) / max(total, 1e-9)))
+            s = math.sqrt(float(share @ z2) / max(total, 1e-9))
             s = min(max(s, TAIL_MIN_SCALE), TAIL_MAX_SCALE)
             if abs(w - before[0]) < weight_tolerance and abs(s - before[1]) < scale_tolerance:
                 break
