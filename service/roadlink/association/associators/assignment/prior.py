@@ -143,9 +143,9 @@ class CandidatePairs:
         members = s.members(q)
         if members.size == 0 or a.size == 0:
             return None
-        times = s.time[members]
+        times = s.sorted_time[s.start[q] : s.start[q + 1]]  # s.time[members]
         length = float(s.positions[q] - s.positions[s.sensor[a[0]]])
-        typical_speed_b = float(median(s.speed[members]))
+        typical_speed_b = float(s.median_speed[q])
         typical = median(travel_time(length, s.speed[a], typical_speed_b))
         shift = PRIOR_SIDEBANDS[1] * float(typical)
         slowest = float(s.speed[members].min())

@@ -138,11 +138,12 @@ def build_tracks(
     tail = np.zeros(0, dtype=np.int64)  # last detection of every track, by track index
     gate = Gate.of(s, model, params, params.gate_cost)
     edges = WindowEdges.of(s, model, params.gate_cost / 2.0)
+    copies = leader if (leader >= 0).any() else None
     for q in range(n_sensors):
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
             linked_b = _extend_tracks(s, model, params, gate, edges, q, track, tail, level, anchor)
-        born = _births(s.members(q), linked_b, track, leader)
+        born = _births(s.members(q), linked_b, track, copies)
         track[born] = tail.size + np.arange(born.size)
         tail = np.concatenate([tail, born])
         if progress:
@@ -180,13 +181,17 @@ def _extend_tracks(
     return linked_b
 
 
-def _births(members: IntArray, linked_b: IntArray, track: IntArray, leader: IntArray) -> IntArray:
+def _births(
+    members: IntArray, linked_b: IntArray, track: IntArray, leader: IntArray | None
+) -> IntArray:
     """The detections of a sensor that start tracks: the unmatched ones, except a report that may
     duplicate one just linked (same sensor, moments apart, same speed): one passage reported
     twice must not start a second track. Two such reports both unmatched both start tracks,
     since they may be two vehicles side by side; a copy's track then dies short
-    (`min_track_length`)."""
+    (`min_track_length`). `leader` None: no report may duplicate another."""
     unmatched = members[track[members] < 0]
+    if leader is None:
+        return unmatched
     twin_linked = np.zeros(track.size, dtype=bool)
     copies = linked_b[leader[linked_b] >= 0]
     twin_linked[leader[copies]] = True
