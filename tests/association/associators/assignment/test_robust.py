@@ -85,7 +85,7 @@ def test_the_spread_about_the_median_is_centre_and_spreads() -> None:
 def test_the_medians_of_runs_side_by_side_are_each_runs_own() -> None:
     # To the last bit: short and long runs, odd and even, ties, one column or several.
     rng = np.random.default_rng(2)
-    sizes = np.array([1, 2, 3, 10, SHORT_ARRAY + 1, 200])
+    sizes = np.array([1, 2, 3, 10, SHORT_ARRAY - 1, SHORT_ARRAY])
     starts = np.cumsum(sizes) - sizes
     values = np.round(rng.normal(size=(sizes.sum(), 4)), 2)
     found = run_medians(values[:, 0], sizes)
@@ -97,9 +97,10 @@ def test_the_medians_of_runs_side_by_side_are_each_runs_own() -> None:
     assert columns is not None
     for i, (start, n) in enumerate(zip(starts, sizes, strict=True)):
         assert np.array_equal(columns[i], column_medians(values[start : start + n]))
-    # Left to the caller, run by run: a value not finite, a median of zero (its sign).
+    # Left to the caller, run by run: a value not finite, a median of zero (its sign), a long run.
     assert run_medians(np.array([1.0, np.nan, 2.0]), np.array([1, 2])) is None
     assert run_medians(np.array([1.0, -0.0, 0.0]), np.array([1, 2])) is None
+    assert run_medians(np.zeros(SHORT_ARRAY + 1) + 1.0, np.array([SHORT_ARRAY + 1])) is None
 
 
 @pytest.mark.parametrize("n", [5, SHORT_ARRAY + 1, 301])

@@ -86,12 +86,13 @@ def run_medians(values: FloatArray, sizes: IntArray) -> FloatArray | None:
     """The medians (of each column, for 2-D values) of consecutive runs of `values`' rows, run i
     `sizes[i]` rows long (at least one): `median` (or `column_medians`) of each run, the same
     numbers, from one sort of all the runs side by side, each padded with +inf (sorted last).
-    None where a value is not finite or a median is zero (`median` then defers to numpy, whose
-    sign of zero may differ), for the caller to take the runs one by one.
+    None where a run is longer than SHORT_ARRAY, a value is not finite or a median is zero
+    (`median` then defers to numpy, whose sign of zero may differ), for the caller to take the
+    runs one by one.
 
     A paper-size batch has a few dozen short runs: numpy's fixed cost per call, run after run,
-    was the work."""
-    if not np.isfinite(values).all():
+    was the work. Long runs are quicker one by one (a partition each, no padding)."""
+    if sizes.max() > SHORT_ARRAY or not np.isfinite(values).all():
         return None
     n_runs = sizes.size
     row = np.arange(values.shape[0]) - np.repeat(np.cumsum(sizes) - sizes, sizes)
