@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
+from operator import itemgetter
 
 import numpy as np
 
@@ -100,18 +102,28 @@ def refine_boundaries(
 # A boundary's candidate links, their costs, and which of them the tracks keep.
 Judged = tuple[Pairs, FloatArray, BoolArray]
 
+# Candidate links judged in one call, about: boundaries with fewer are judged together.
+JUDGED_AT_ONCE = 4096
+
 
 def judge_links(confidence: FloatArray, judged: list[Judged], gate: float) -> None:
     """Write into `confidence` how sure each kept link is against its rivals at each boundary
     (`matching.chosen_marginals`), a link judged at several boundaries (one over a missed
     detection) as at the last.
 
-    One call judges every boundary (numpy's fixed cost per call, over a dozen calls a boundary,
-    was most of a small sweep's judging): each boundary's nodes are numbered apart (boundary
-    times the number of detections, plus the detection), so no edge meets another boundary's,
-    and every sum runs over one boundary's edges in the order it would alone."""
-    if not judged:
-        return
+    Neighbouring boundaries with few links between them (a paper-size batch's every boundary)
+    are judged in one call: numpy's fixed cost per call, over a dozen calls a boundary, was most
+    of a small sweep's judging. Boundaries with many are judged alone, as one call over all of
+    them would sort them all together."""
+    group = np.cumsum([pairs.a.size for pairs, _, _ in judged]) // JUDGED_AT_ONCE
+    for _, together in itertools.groupby(zip(group.tolist(), judged, strict=True), itemgetter(0)):
+        judge_together(confidence, [boundary for _, boundary in together], gate)
+
+
+def judge_together(confidence: FloatArray, judged: list[Judged], gate: float) -> None:
+    """`judge_links` of some boundaries in one call: each boundary's nodes are numbered apart
+    (boundary times the number of detections, plus the detection), so no edge meets another
+    boundary's, and every sum runs over one boundary's edges in the order it would alone."""
     n = confidence.size
     left = np.concatenate([pairs.a + i * n for i, (pairs, _, _) in enumerate(judged)])
     right = np.concatenate([pairs.b + i * n for i, (pairs, _, _) in enumerate(judged)])
