@@ -8,7 +8,7 @@ from roadlink.association import Detections
 from roadlink.association.associators.assignment import AssignmentParams
 from roadlink.association.associators.assignment.anchors import Anchors
 from roadlink.association.associators.assignment.learning import (
-    best_skew,
+    best_skews,
     confident_detections,
     learn_segments,
 )
@@ -52,20 +52,25 @@ def test_learning_finds_which_end_of_a_segment_explains_its_travel_time():
     assert model.skew[0, 1] == model.skew[2, 1] == 0.5
 
 
-def test_best_skew_finds_which_end_explains_the_travel_time():
+def test_best_skews_find_which_end_explains_the_travel_time():
     rng = np.random.default_rng(1)
     n = 200
     dx = np.full(n, 250.0)
     v_a, v_b = rng.uniform(25.0, 35.0, n), rng.uniform(10.0, 16.0, n)
     noise = np.exp(0.01 * rng.standard_normal(n))
+    # One long segment (its medians taken alone) and two short ones (theirs side by side, to
+    # two steps of the grid).
+    whole, halves = [np.arange(n)], [np.arange(0, 50), np.arange(50, 100)]
     for w in (0.0, 0.2, 0.8, 1.0):
         dt = 1.3 * dx * ((1.0 - w) / v_a + w / v_b) * noise
-        assert best_skew(dt, dx, v_a, v_b) == pytest.approx(w, abs=0.05)
+        assert best_skews(dt, dx, v_a, v_b, whole) == pytest.approx([w], abs=0.05)
+        assert best_skews(dt, dx, v_a, v_b, halves) == pytest.approx([w, w], abs=0.1)
     # Where both ends' speeds explain the time alike, the kinematic prediction stands.
     same = rng.uniform(25.0, 35.0, n)
     dt = dx / same * np.exp(0.02 * rng.standard_normal(n))
-    assert best_skew(dt, dx, same, same * np.exp(0.02 * rng.standard_normal(n))) == 0.5
-    assert best_skew(dt[:2], dx[:2], same[:2], same[:2]) == 0.5  # too few links to say
+    assert best_skews(dt, dx, same, same * np.exp(0.02 * rng.standard_normal(n)), whole) == [0.5]
+    too_few = [np.arange(2)]  # links to say
+    assert best_skews(dt, dx, same, same, too_few) == [0.5]
 
 
 def test_a_short_track_is_confident_where_lane_order_anchors_its_link():

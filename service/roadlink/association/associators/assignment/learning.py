@@ -127,7 +127,7 @@ def learn_span(
     skew = np.full(s.positions.size, KINEMATIC_SKEW)
     segment = runs(p, counts)
     seen = np.flatnonzero(counts)
-    # best_skew's own even sample, taken before the gathers (it then samples no further).
+    # An even sample of each segment's links, taken before the gathers.
     here = [segment[k][:: max(1, segment[k].size // SKEW_SAMPLE)] for k in seen]
     learned = best_skews(dt, dx, s.speed[a], s.speed[b], here)
     skew[seen] = KINEMATIC_SKEW + weight[seen] * (learned - KINEMATIC_SKEW)
@@ -233,8 +233,13 @@ def learn_tails(
 def best_skews(
     dt: FloatArray, dx: FloatArray, speed_a: FloatArray, speed_b: FloatArray, here: list[IntArray]
 ) -> FloatArray:
-    """`best_skew` of each segment's links (`here`, indices into the links' arrays), with the
-    medians of all the segments with enough links from one sort (`robust.run_medians`)."""
+    """The share w of each segment's travel time best predicted from its far end's speed:
+    travel = bias * dx * ((1 - w) / v_a + w / v_b) with the least robust spread of log errors,
+    over the segment's links `here` (indices into the links' arrays; an even sample of a few
+    hundred pins the skew as well as all of them would). Where speeds change at a known place
+    (braking for a slow zone just before its sensor), one end's speed explains most of the time.
+    The medians of the segments' errors come from one sort where they are short
+    (`robust.run_medians`), else segment by segment."""
     learned = np.full(len(here), KINEMATIC_SKEW)
     some = [i for i, h in enumerate(here) if h.size >= SKEW_MIN_LINKS]
     if not some:
@@ -247,11 +252,15 @@ def best_skews(
         None if centre is None else run_medians(np.abs(errors - np.repeat(centre, sizes, 0)), sizes)
     )
     if spread is None:
-        for i in some:
-            learned[i] = best_skew(dt[here[i]], dx[here[i]], speed_a[here[i]], speed_b[here[i]])
-        return learned
+        spread = np.array(
+            [
+                column_medians(np.abs(own - column_medians(own)))
+                for own in np.split(errors, np.cumsum(sizes)[:-1])
+            ]
+        )
     best = np.argmin(spread, axis=1)
-    # The symmetric prediction stands unless another share is clearly better (`best_skew`).
+    # The symmetric prediction stands unless another share is clearly better: beyond the
+    # sampling error of a spread measured on this many links.
     symmetric = spread[:, SKEW_GRID.size // 2]
     margin = symmetric * (1.0 - SKEW_SIGNIFICANCE / np.sqrt(sizes))
     unclear = spread[np.arange(sizes.size), best] > margin
@@ -267,28 +276,6 @@ def skew_errors(
     pace_b = (dx / speed_b)[:, None]
     errors: FloatArray = np.log(dt[:, None] / ((1.0 - SKEW_GRID) * pace_a + SKEW_GRID * pace_b))
     return errors
-
-
-def best_skew(dt: FloatArray, dx: FloatArray, speed_a: FloatArray, speed_b: FloatArray) -> float:
-    """The share w of a segment's travel time best predicted from its far end's speed:
-    travel = bias * dx * ((1 - w) / v_a + w / v_b) with the least robust spread of log errors.
-    Where speeds change at a known place (braking for a slow zone just before its sensor), one
-    end's speed explains most of the time."""
-    if dt.size < SKEW_MIN_LINKS:
-        return KINEMATIC_SKEW
-    # An even sample of a few hundred links pins the skew as well as all of them would.
-    step = max(1, dt.size // SKEW_SAMPLE)
-    dt, dx, speed_a, speed_b = dt[::step], dx[::step], speed_a[::step], speed_b[::step]
-    errors = skew_errors(dt, dx, speed_a, speed_b)
-    centred = errors - column_medians(errors)
-    spread = column_medians(np.abs(centred))
-    best = int(np.argmin(spread))
-    # The symmetric prediction stands unless another share is clearly better: beyond the
-    # sampling error of a spread measured on this many links.
-    symmetric = spread[SKEW_GRID.size // 2]
-    if spread[best] > symmetric * (1.0 - SKEW_SIGNIFICANCE / np.sqrt(dt.size)):
-        return KINEMATIC_SKEW
-    return float(SKEW_GRID[best])
 
 
 def posterior_centre(
