@@ -29,7 +29,7 @@ import numpy as np
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.sensors import Sensors, travel_time
-from roadlink.association.detections import FloatArray
+from roadlink.association.detections import FloatArray, IntArray
 
 # The spread (log travel time) of the prediction from one end alone: the far end's speed is
 # unknown, taken as its sensor's median, and a queue's spot speeds tell its crawl poorly.
@@ -50,20 +50,32 @@ class WindowEdges:
 
     @classmethod
     def of(cls, s: Sensors, model: SegmentModel, unmatched: float) -> WindowEdges:
-        """Each detection's two costs, at most `unmatched` (what staying unmatched costs)."""
+        """Each detection's two costs, at most `unmatched` (what staying unmatched costs).
+
+        Only the detections near an edge are worked out: one whose room to the edge exceeds
+        what its segment's slowest detection would take, EDGE_FAR spreads late, pays nothing
+        (on a long batch, all but the first and last minutes)."""
         leaving, arriving = np.zeros(s.time.size), np.zeros(s.time.size)
-        for p in range(s.positions.size - 1):
-            q = p + 1
-            gap = s.positions[q] - s.positions[p]
-            bias, skew = model.log_bias[p, 1], model.skew[p, 1]
-            spread = max(float(model.time_spread[p, 1]), EDGE_SPREAD)
-            up, down = s.members(p), s.members(q)
-            ahead = bias + np.log(travel_time(gap, s.speed[up], s.median_speed[q], skew))
-            behind = bias + np.log(travel_time(gap, s.median_speed[p], s.speed[down], skew))
-            leaving[up] = _cost_outside(s.last_time[q] - s.time[up], ahead, spread, unmatched)
-            arriving[down] = _cost_outside(
-                s.time[down] - s.first_time[p], behind, spread, unmatched
-            )
+        if s.positions.size < 2:
+            return cls(leaving, arriving)
+        segment = _Segments.of(s, model)
+        n_segments = s.positions.size - 1
+        up = _near(s, range(n_segments), s.last_time[1:], segment.leaving_reach(s), before=False)
+        p = s.sensor[up]
+        ahead = segment.bias[p] + np.log(
+            travel_time(segment.gap[p], s.speed[up], s.median_speed[p + 1], segment.skew[p])
+        )
+        room = s.last_time[p + 1] - s.time[up]
+        leaving[up] = _cost_outside(room, ahead, segment.spread[p], unmatched)
+        down = _near(
+            s, range(1, n_segments + 1), s.first_time[:-1], segment.arriving_reach(s), before=True
+        )
+        p = s.sensor[down] - 1
+        behind = segment.bias[p] + np.log(
+            travel_time(segment.gap[p], s.median_speed[p], s.speed[down], segment.skew[p])
+        )
+        room = s.time[down] - s.first_time[p]
+        arriving[down] = _cost_outside(room, behind, segment.spread[p], unmatched)
         return cls(leaving, arriving)
 
     def cost(self, pairs: Pairs) -> FloatArray:
@@ -72,8 +84,65 @@ class WindowEdges:
         return result
 
 
+@dataclass(frozen=True)
+class _Segments:
+    """Each segment's (by the sensor it starts at) gap, travel-time bias and skew, and the spread
+    a travel time predicted from one end has."""
+
+    gap: FloatArray
+    bias: FloatArray
+    skew: FloatArray
+    spread: FloatArray
+
+    @classmethod
+    def of(cls, s: Sensors, model: SegmentModel) -> _Segments:
+        return cls(
+            np.diff(s.positions),
+            model.log_bias[:-1, 1],
+            model.skew[:-1, 1],
+            np.maximum(model.time_spread[:-1, 1], EDGE_SPREAD),
+        )
+
+    def leaving_reach(self, s: Sensors) -> FloatArray:
+        """For every segment, the longest room to the window's close that can cost a detection at
+        its upstream sensor anything: what the slowest detection there would take, EDGE_FAR
+        spreads late."""
+        return self._late(
+            travel_time(self.gap, s.slowest_speed[:-1], s.median_speed[1:], self.skew)
+        )
+
+    def arriving_reach(self, s: Sensors) -> FloatArray:
+        """The same from the window's opening, for a detection at the downstream sensor."""
+        return self._late(
+            travel_time(self.gap, s.median_speed[:-1], s.slowest_speed[1:], self.skew)
+        )
+
+    def _late(self, travel: FloatArray) -> FloatArray:
+        result: FloatArray = np.exp(self.bias + EDGE_FAR * self.spread) * travel
+        return result
+
+
+def _near(
+    s: Sensors, sensors: range, edge: FloatArray, reach: FloatArray, *, before: bool
+) -> IntArray:
+    """The detections of each of these sensors within its `reach` of its `edge` (one of each per
+    sensor, in order): after edge - reach where the edge closes the window, before edge + reach
+    where it opens it. Each sensor's detections are sorted by time, so this is two searches a
+    sensor, whatever the batch's length."""
+    parts = []
+    for k, q in enumerate(sensors):
+        lo, hi = int(s.start[q]), int(s.start[q + 1])
+        times = s.sorted_time[lo:hi]
+        if before:
+            hi = lo + int(np.searchsorted(times, edge[k] + reach[k], side="left"))
+        else:
+            lo += int(np.searchsorted(times, edge[k] - reach[k], side="right"))
+        parts.append(s.order[lo:hi])
+    return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+
+
 def _cost_outside(
-    room: FloatArray, log_expected: FloatArray, spread: float, unmatched: float
+    room: FloatArray, log_expected: FloatArray, spread: FloatArray, unmatched: float
 ) -> FloatArray:
     """-2 log P(travel time <= room), at most `unmatched`, for a log-normal travel time of centre
     `log_expected` and `spread`: `unmatched` where there is no room at all, 0 where the room is

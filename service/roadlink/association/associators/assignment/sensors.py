@@ -59,6 +59,12 @@ class Sensors:
         return self.sorted_time[self.start[:-1]]
 
     @cached_property
+    def slowest_speed(self) -> FloatArray:
+        """The slowest (floored) speed measured at each sensor."""
+        result: FloatArray = np.minimum.reduceat(self.speed[self.order], self.start[:-1])
+        return result
+
+    @cached_property
     def last_time(self) -> FloatArray:
         """Each sensor's last detection time: where the batch's window closes for it."""
         return self.sorted_time[self.start[1:] - 1]
