@@ -103,6 +103,7 @@ def test_a_crawl_cut_by_the_window_is_linked_better() -> None:
     # SUMO's val-creep (seed 0, with lane, length and class): 3 lanes into a zone limited to
     # 2.5 m/s, sensors every 200 m (80 s a segment in the zone), seen for 240 s. Measured 79.3 %
     # before a link paid for the window's edges, 81.9 % with that, 82.9 % once the tracks that
-    # hold an anchored link taught the segments too (`learning.confident_detections`).
+    # hold an anchored link taught the segments too (`learning.confident_detections`), 85.4 %
+    # once the sweeps joined fragments there at the forward pass's gate (`refine.fragment_ends`).
     metrics = associate(read_detections_csv(CREEP.read_text()), "assignment").metrics
-    assert metrics is not None and metrics.accuracy >= 0.81
+    assert metrics is not None and metrics.accuracy >= 0.83

@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 from roadlink.association.associators.assignment import AssignmentParams
-from roadlink.association.associators.assignment.refine import refine_boundaries, suffix_sums
+from roadlink.association.associators.assignment.anchors import Anchors
+from roadlink.association.associators.assignment.gating import Pairs
+from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR
+from roadlink.association.associators.assignment.refine import (
+    fragment_ends,
+    refine_boundaries,
+    suffix_sums,
+)
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.associators.assignment.tracks import successors
 from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
@@ -88,3 +95,27 @@ def test_suffix_sums_run_from_each_detection_to_its_tracks_end():
     # V0's rows are 0, 2, 4, 6, 8: from row 4 on, 4 + 6 + 8 over three detections.
     assert total[[0, 4, 8]].tolist() == [20.0, 18.0, 8.0]
     assert count[[0, 4, 8]].tolist() == [5.0, 3.0, 1.0]
+
+
+def test_joining_fragments_pays_the_forward_pass_gate_where_anchors_weigh():
+    # Detections 0 -> 1 linked; 2 has no successor, 3 no predecessor. Candidate links at the
+    # boundary into sensor 1: 0 -> 1 (both held), 2 -> 3 (both ends loose), 0 -> 3 (one loose).
+    nxt = np.array([1, -1, -1, -1])
+    prv = np.array([-1, 0, -1, -1])
+    pairs = Pairs(
+        np.array([0, 2, 0]),
+        np.array([1, 3, 3]),
+        np.zeros(3),
+        np.zeros(3),
+        np.ones(3),
+        np.ones(3, dtype=np.int64),
+    )
+    half_difference = (REFINE_GATE_FACTOR - 1.0) * PARAMS.gate_cost / 2.0
+    anchors = Anchors(np.full(4, -1), np.zeros(4), weight=np.array([1.0, 0.0]))
+    assert fragment_ends(PARAMS, anchors, 1, (nxt, prv), pairs).tolist() == pytest.approx(
+        [0.0, 2 * half_difference, half_difference]
+    )
+    # Where the segment's anchors do not weigh (free flow), or there are none, nothing.
+    free = Anchors(np.full(4, -1), np.zeros(4), weight=np.array([0.0, 0.0]))
+    assert not fragment_ends(PARAMS, free, 1, (nxt, prv), pairs).any()
+    assert not fragment_ends(PARAMS, None, 1, (nxt, prv), pairs).any()

@@ -89,6 +89,9 @@ class Anchors:
 
     predecessor: IntArray
     bonus: FloatArray
+    # How much each segment's anchors weigh (by the sensor it starts at): 0 where its tracks
+    # agree with them, 1 where they disagree on FULL_DISAGREEMENT or more (`weigh_anchors`).
+    weight: FloatArray | None = None
 
     def weighed_segments(self, s: Sensors) -> IntArray:
         """The segments (by the sensor they start at) where some anchor carries a bonus."""
@@ -131,7 +134,7 @@ def weigh_anchors(
     share = np.minimum(disagree / FULL_DISAGREEMENT, 1.0)
     sure = np.minimum(2.0 * margin[anchored], ANCHOR_BONUS)
     bonus[anchored] = sure * share[segment]
-    return Anchors(predecessor, bonus)
+    return Anchors(predecessor, bonus, share)
 
 
 @dataclass

@@ -80,7 +80,7 @@ def refine_boundaries(
         tails, pairs = ends
         cost = boundary_cost(params, model, pairs, levels, s, (nxt, prv))
         cost -= anchor_bonus(pairs, anchor)
-        cost += edges.cost(pairs)
+        cost += edges.cost(pairs) + fragment_ends(params, anchor, k, (nxt, prv), pairs)
         if relink:
             # Splitting a track costs more here than declining a link did: a track the forward
             # pass built is evidence in itself, so re-pairing must pay for itself.
@@ -134,6 +134,31 @@ def judge_together(confidence: FloatArray, judged: list[Judged], gate: float) ->
     # The last judgement of each link: its first in reverse.
     last = b.size - 1 - np.unique(b[::-1], return_index=True)[1]
     confidence[b[last]] = marginal[last]
+
+
+def fragment_ends(
+    params: AssignmentParams,
+    anchor: Anchors | None,
+    k: int,
+    links: tuple[IntArray, IntArray],
+    pairs: Pairs,
+) -> FloatArray:
+    """What joining fragments at boundary k pays where lane order's anchors weigh.
+
+    The sweep's gate is REFINE_GATE_FACTOR times the forward pass's, so that splitting a track
+    must pay for itself; but it lets two fragments (a prefix without a suffix, a suffix without
+    a prefix) join at a cost the pass refused. In a queue the anchors are what holds the tracks,
+    and half the detections have no partner in the batch (`edges.py`): there the sweep shifted a
+    lane's anchored chain by a vehicle to join such ends. So each end that no link holds now
+    pays the difference between the two gates' halves, in proportion to how much the segment's
+    anchors weigh (`anchors.weigh_anchors`): in full in a queue, nothing in free flow."""
+    if anchor is None or anchor.weight is None or anchor.weight[k - 1] == 0:
+        return np.zeros(pairs.a.size)
+    nxt, prv = links
+    unheld = (nxt[pairs.a] < 0).astype(np.float64) + (prv[pairs.b] < 0)
+    difference = (REFINE_GATE_FACTOR - 1.0) * params.gate_cost / 2.0
+    result: FloatArray = difference * anchor.weight[k - 1] * unheld
+    return result
 
 
 @dataclass
