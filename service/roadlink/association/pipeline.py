@@ -22,6 +22,7 @@ DEFERRED_IMPORTS = (
     "scipy.interpolate",
     "scipy.optimize",
     "scipy.sparse.csgraph",
+    "scipy.special",
     "sklearn.cluster",
     "sklearn.model_selection",
     "sklearn.multiclass",

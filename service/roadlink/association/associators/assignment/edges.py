@@ -125,10 +125,10 @@ class _Segments:
 def _near(
     s: Sensors, sensors: range, edge: FloatArray, reach: FloatArray, *, before: bool
 ) -> IntArray:
-    """The detections of each of these sensors within its `reach` of its `edge` (one of each per
-    sensor, in order): after edge - reach where the edge closes the window, before edge + reach
-    where it opens it. Each sensor's detections are sorted by time, so this is two searches a
-    sensor, whatever the batch's length."""
+    """The detections of each of these sensors within its `reach` of its `edge` (`edge[k]` and
+    `reach[k]` for the k-th sensor named): after edge - reach where the edge closes the window,
+    before edge + reach where it opens it. Each sensor's detections are sorted by time, so this
+    is one search a sensor, whatever the batch's length."""
     parts = []
     for k, q in enumerate(sensors):
         lo, hi = int(s.start[q]), int(s.start[q + 1])
