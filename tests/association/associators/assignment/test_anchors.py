@@ -8,19 +8,19 @@ import numpy as np
 import pytest
 
 from roadlink.association import associate
-from roadlink.association.associators.assignment import anchors
+from roadlink.association.associators.assignment import anchors, first_chains
 from roadlink.association.associators.assignment.anchors import (
     ANCHOR_BONUS,
-    LOOSE_SMOOTHNESS,
-    SMOOTHNESS_BOUNDS,
+    lane_destinations,
     lane_order_anchors,
-    learned_smoothness,
     track_lengths,
     weigh_anchors,
 )
 from roadlink.association.associators.assignment.chains import (
     smooth_chain,
 )
+from roadlink.association.associators.assignment.first_chains import learned_smoothness
+from roadlink.association.associators.assignment.learning import learn_segments
 from roadlink.association.associators.assignment.params import AssignmentParams
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.sensors import arrange
@@ -30,16 +30,6 @@ from tests.association.associators.assignment.test_chains import chain_case
 from tests.helpers import lane_queue
 
 SUMO_FEATURES = Path(__file__).parents[3] / "data" / "sumo-features"
-
-
-def test_each_segment_learns_how_smooth_its_followers_travel_times_are() -> None:
-    calm = chain_case(offset=3, n=60)
-    queued = chain_case(offset=3, n=60, wait=0.05)
-    smooth, rough = learned_smoothness([calm]), learned_smoothness([queued])
-    assert smooth == SMOOTHNESS_BOUNDS[0]  # a drift of 0.01 % per vehicle: the floor
-    # The steps of a queue whose followers wait 5 % (each): their changes spread about 7 %.
-    assert 0.04 <= rough <= 0.11
-    assert learned_smoothness([]) == LOOSE_SMOOTHNESS
 
 
 def test_a_queue_chain_runs_on_through_vehicles_that_lengths_cannot_tell_apart() -> None:
@@ -142,7 +132,7 @@ def test_in_a_steady_crawl_the_speeds_keep_the_chains_from_drifting(monkeypatch)
     # first detections to each other would link more pairs, all of them wrong. The kinematic
     # travel time (125 s, not 50) keeps most chains where they belong.
     assert np.mean([anchors_right(d) for d in cases]) >= 0.4
-    monkeypatch.setattr(anchors, "KINEMATIC_SPREAD", 1e6)
+    monkeypatch.setattr(first_chains, "KINEMATIC_SPREAD", 1e6)
     assert np.mean([anchors_right(d) for d in cases]) <= 0.1
 
 
@@ -246,8 +236,9 @@ def test_track_lengths_average_the_readings_up_to_and_from_each_detection() -> N
 @pytest.mark.parametrize(
     ("name", "single", "tracked"),
     # Share of anchors right, as measured: with each pair's two readings, and with the
-    # lengths averaged along the true tracks.
-    [("sumo-bottleneck", 0.923, 0.971), ("sumo-stopgo", 0.957, 0.976)],
+    # lengths averaged along the true tracks (with the kinematic term centred on each block's
+    # own chain, stop-and-go gains less from the averages: 0.957 -> 0.966, 0.973 before).
+    [("sumo-bottleneck", 0.924, 0.972), ("sumo-stopgo", 0.957, 0.966)],
 )
 def test_lengths_averaged_along_tracks_pin_chains_that_single_readings_cannot(
     name: str, single: float, tracked: float
@@ -267,7 +258,7 @@ def test_lengths_averaged_along_tracks_pin_chains_that_single_readings_cannot(
     assert right(first) == pytest.approx(single, abs=0.005)
     redrawn = lane_order_anchors(s, model, params, track, first)
     assert right(redrawn) >= tracked - 0.005
-    assert right(redrawn) >= right(first) + 0.015
+    assert right(redrawn) >= right(first) + 0.008
     # Drawn again, a segment keeps the smoothness it learned; only the segments named are drawn.
     np.testing.assert_array_equal(redrawn.smoothness, first.smoothness)
     some = lane_order_anchors(s, model, params, track, first, segments=[2])
@@ -275,8 +266,9 @@ def test_lengths_averaged_along_tracks_pin_chains_that_single_readings_cannot(
 
 
 def test_chains_drawn_in_small_runs_are_the_chains_drawn_at_once(monkeypatch) -> None:
-    # The programme draws many blocks at once (`_batches`); how many must change nothing, from
-    # one block a run (and one segment a group) to all of them. Blocks of 40 make many.
+    # The programme draws many blocks at once (`first_chains.batches`); how many must change
+    # nothing, from one block a run (and one segment a group) to all of them. Blocks of 40 make
+    # many.
     d = read_detections_csv((SUMO_FEATURES / "sumo-bottleneck.csv").read_bytes())
     params = AssignmentParams()
     s = arrange(d, params)
@@ -284,7 +276,7 @@ def test_chains_drawn_in_small_runs_are_the_chains_drawn_at_once(monkeypatch) ->
     monkeypatch.setattr(anchors, "BLOCK", 40)
     drawn = []
     for budget in (1, 20_000, 10**9):
-        monkeypatch.setattr(anchors, "BATCH_PAIRS", budget)
+        monkeypatch.setattr(first_chains, "BATCH_PAIRS", budget)
         drawn.append(lane_order_anchors(s, model, params))
     assert np.mean(drawn[0].predecessor >= 0) > 0.5
     for chains in drawn[1:]:
@@ -293,8 +285,33 @@ def test_chains_drawn_in_small_runs_are_the_chains_drawn_at_once(monkeypatch) ->
         np.testing.assert_array_equal(chains.smoothness, drawn[0].smoothness)
 
 
-def test_batches_keep_the_order_and_a_budget_of_pairs(monkeypatch) -> None:
-    monkeypatch.setattr(anchors, "BATCH_PAIRS", 10)
-    runs = list(anchors._batches([4, 4, 4, 30, 1, 9], lambda size: size))
-    assert runs == [[4, 4], [4], [30], [1, 9]]
-    assert list(anchors._batches([], lambda size: size)) == []
+def test_where_a_lane_drop_renumbers_the_lanes_each_lane_is_chained_to_the_lane_it_reaches(
+    monkeypatch,
+) -> None:
+    # SUMO's val-lanedrop2 (seed 0, with lane, length and class): two lanes narrowing to one at
+    # 2.3-2.8 km. The last sensor but one, inside the narrow stretch, reports its one lane as
+    # lane 1; the last, where the road is wide again, numbers its two lanes from 0, and 94 of
+    # the last segment's 127 vehicles go from lane 1 to lane 0. Chained by lane number, that
+    # segment had 23 keepers to align, and 7 % of its links were right.
+    d = read_detections_csv((SUMO_FEATURES / "val-lanedrop2.csv").read_bytes())
+    params = AssignmentParams()
+    s = arrange(d, params)
+    labels = d.target.astype(str)
+    truth = np.where(labels == "clutter", -1, np.unique(labels, return_inverse=True)[1])
+    prior = segment_prior(s, params.max_skip + 1, params)
+    model = learn_segments(s, truth, params, prior)
+    last = s.positions.size - 2
+    assert lane_destinations(s, model, last)[1] == 0
+    # Elsewhere the lanes keep their numbers.
+    assert lane_destinations(s, model, 1) == {0: 0, 1: 1}
+    measured = associate(d, "assignment").metrics
+    monkeypatch.setattr(
+        anchors,
+        "lane_destinations",
+        lambda s, model, k: {lane: lane for lane in np.unique(s.features.lane[s.members(k)])},
+    )
+    by_number = associate(d, "assignment").metrics
+    assert measured is not None and by_number is not None
+    # As measured: 93.9 % against 87.9 % with every lane chained to its own number.
+    assert measured.accuracy >= 0.93
+    assert measured.accuracy >= by_number.accuracy + 0.04

@@ -21,43 +21,34 @@ without anchors contradict its anchors (`weigh_anchors`). See docs/assignment.md
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import TypeVar
 
 import numpy as np
 
 from roadlink.association.associators.assignment.chains import (
-    BAND,
     STEP_TAIL,
     ChainProblem,
     chains_with_margins,
-    smooth_chains,
 )
 from roadlink.association.associators.assignment.features import (
     FeatureModel,
     length_density_at,
 )
+from roadlink.association.associators.assignment.first_chains import (
+    Terms,
+    batches,
+    kinematic_gain,
+    learned_smoothnesses,
+    loose_chains,
+    recentred,
+)
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import AssignmentParams
-from roadlink.association.associators.assignment.robust import MAD_TO_STD, median
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.detections import NO_LANE, FloatArray, IntArray
 
-# From one vehicle in a lane to the next, log travel time (or its kinematic error) changes by a
-# spread that each segment learns from its own chains (`learned_smoothness`): little in free
-# flow, where followers keep about the same speed, and by several per cent at a queue's tail,
-# where each follower waits a little longer or shorter than the one before. The first chain is
-# drawn with a loose spread, which lets it run through a queue; the spread of its steps, kept
-# between these bounds, draws the second.
-LOOSE_SMOOTHNESS = 0.1
-SMOOTHNESS_BOUNDS = (0.01, 0.15)
-SMOOTHNESS_SAMPLE = 400
-# A pair's kinematic error (log travel time against the gap at its mean speed) is scored as a
-# normal of this spread, at most KINEMATIC_CAP (3 spreads squared) lower (`_kinematic_gain`).
-KINEMATIC_SPREAD = 0.5
-KINEMATIC_CAP = 9.0
 # A pair without both lengths (detectors that report lane alone) is pinned by time alone, so a
 # chain shifted by a vehicle scores nearly as well as the true one: measured on SUMO queues and
 # slow zones (lane alone against lane and length), such an anchor is right as often as one with
@@ -75,11 +66,6 @@ ANCHOR_BONUS = 16.0
 FULL_DISAGREEMENT = 0.4
 # Upstream detections per block of a lane's chain (see `_blocks`).
 BLOCK = 500
-# Pairs of the blocks whose chains are drawn in one programme (`_batches`): numpy's cost per
-# call is paid once for them all, and their arrays are held at once.
-BATCH_PAIRS = 1_000_000
-
-T = TypeVar("T")
 
 
 @dataclass
@@ -178,9 +164,10 @@ def lane_order_anchors(
         return chains
     lengths = track_lengths(s, track)
     blocks = {
-        k: _segment_blocks(s, k) for k in (range(n_segments) if segments is None else segments)
+        k: _segment_blocks(s, model, k)
+        for k in (range(n_segments) if segments is None else segments)
     }
-    for group in _batches(list(blocks), lambda k: sum(a.size * b.size for a, b, _ in blocks[k])):
+    for group in batches(list(blocks), lambda k: sum(a.size * b.size for a, b, _ in blocks[k])):
         terms = {
             k: [
                 (*_pair_terms(s, model, params, k, a, b, longest, lengths), a, b)
@@ -188,20 +175,21 @@ def lane_order_anchors(
             ]
             for k in group
         }
-        _draw_segments(s, terms, chains, drawn)
+        _draw_segments(s, params, terms, chains, drawn)
     return chains
 
 
 def _draw_segments(
     s: Sensors,
-    terms: dict[int, list[tuple[FloatArray, FloatArray, FloatArray, IntArray, IntArray]]],
+    params: AssignmentParams,
+    terms: Terms,
     chains: Chains,
     drawn: Chains | None,
 ) -> None:
     """Draw the chains of the segments of `terms` (each block's pair terms and its detections
     upstream and downstream, by segment) into `chains`: their smoothness (learned, or lent by
     the chains `drawn` before), then every block's chain and margins, in runs of blocks drawn at
-    once (`_batches`)."""
+    once (`first_chains.batches`)."""
     assert s.features is not None
     measured = np.isfinite(s.features.log_length)
     # Without lengths, time alone pins a chain: a wide step would let it slip by a vehicle.
@@ -214,8 +202,14 @@ def _draw_segments(
         for k in terms
         if drawn is not None and np.isfinite(drawn.smoothness[k])
     }
+    # Each block's first chain, drawn loose once: where lengths pin the chains, it centres
+    # the kinematic term (`_recentred`), and it teaches the smoothness.
+    loose = loose_chains(
+        terms, [(k, i) for k in terms if tail[k] > 0 for i in range(len(terms[k]))], tail
+    )
     unlearned = {k: [t[:3] for t in terms[k]] for k in terms if k not in lent}
-    smoothness = lent | learned_smoothnesses(unlearned, tail)
+    smoothness = lent | learned_smoothnesses(unlearned, tail, loose)
+    terms = recentred(s, params, terms, loose)
     for k in terms:
         chains.smoothness[k] = smoothness[k]
     problems = [
@@ -223,93 +217,55 @@ def _draw_segments(
         for k in terms
         for gain, log_travel, kinematic, a, b in terms[k]
     ]
-    for run in _batches(problems, lambda p: p[0].gain.size):
+    for run in batches(problems, lambda p: p[0].gain.size):
         drawn_run = chains_with_margins([problem for problem, _, _ in run])
         for (_, a, b), (pairs, margins) in zip(run, drawn_run, strict=True):
             if not pairs:
                 continue
             i, j = np.array(pairs).T
             timed_only = ~(measured[a[i]] & measured[b[j]])
-            chains.predecessor[b[j]] = a[i]
-            chains.margin[b[j]] = np.where(timed_only, LANE_ONLY_MARGIN * margins, margins)
+            margin = np.where(timed_only, LANE_ONLY_MARGIN * margins, margins)
+            # Lanes that merge share the lane they reach (`lane_destinations`), and blocks
+            # overlap: a detection keeps the surest of the chains that pair it.
+            better = (chains.predecessor[b[j]] < 0) | (margin > chains.margin[b[j]])
+            chains.predecessor[b[j[better]]] = a[i[better]]
+            chains.margin[b[j[better]]] = margin[better]
 
 
-def _batches(items: list[T], size: Callable[[T], int]) -> Iterator[list[T]]:
-    """`items` in order, in runs of at most BATCH_PAIRS pairs (of `size` each; an item larger
-    than that alone): the chains' programme draws a run at once, and its memory grows with it."""
-    run: list[T] = []
-    total = 0
-    for item in items:
-        if run and total + size(item) > BATCH_PAIRS:
-            yield run
-            run, total = [], 0
-        run.append(item)
-        total += size(item)
-    if run:
-        yield run
-
-
-def learned_smoothness(
-    terms: list[tuple[FloatArray, FloatArray, FloatArray]], tail: float = STEP_TAIL
-) -> float:
-    """A segment's spread of the change of log travel time from one follower to the next: the
-    robust spread of the steps of its chains drawn at LOOSE_SMOOTHNESS (over blocks until
-    SMOOTHNESS_SAMPLE steps, so a long day costs no more than a short one), within
-    SMOOTHNESS_BOUNDS (LOOSE_SMOOTHNESS where they take fewer than two steps)."""
-    return learned_smoothnesses({0: terms}, {0: tail})[0]
-
-
-def learned_smoothnesses(
-    terms: dict[int, list[tuple[FloatArray, FloatArray, FloatArray]]], tail: dict[int, float]
-) -> dict[int, float]:
-    """Each segment's `learned_smoothness`, every segment's next block drawn in one programme."""
-    steps: dict[int, list[FloatArray]] = {k: [np.zeros(0)] for k in terms}
-    taken = dict.fromkeys(terms, 0)
-    for block in range(max((len(t) for t in terms.values()), default=0)):
-        due = [k for k in terms if taken[k] < SMOOTHNESS_SAMPLE and block < len(terms[k])]
-        if not due:
-            break
-        problems = [ChainProblem(*terms[k][block], LOOSE_SMOOTHNESS, tail[k]) for k in due]
-        for k, problem, pairs in zip(due, problems, smooth_chains(problems), strict=True):
-            steps[k].append(_step_changes(problem.log_travel, problem.kinematic, pairs))
-            taken[k] += steps[k][-1].size
-    smoothness = {}
-    for k in terms:
-        changes = np.concatenate(steps[k])
-        smoothness[k] = (
-            LOOSE_SMOOTHNESS
-            if changes.size < 2
-            else float(np.clip(MAD_TO_STD * median(changes), *SMOOTHNESS_BOUNDS))
-        )
-    return smoothness
-
-
-def _step_changes(
-    log_travel: FloatArray, kinematic: FloatArray, pairs: list[tuple[int, int]]
-) -> FloatArray:
-    """The change scored by each step of a chain (pairs within BAND of the pair before)."""
-    if len(pairs) < 2:
-        return np.zeros(0)
-    i, j = np.array(pairs).T
-    step = (np.diff(i) <= BAND) & (np.diff(j) <= BAND)
-    change = np.fmin(
-        np.abs(np.diff(log_travel[i, j])),
-        np.abs(np.diff(kinematic[i, j])),
-    )
-    return change[step]
-
-
-def _segment_blocks(s: Sensors, k: int) -> list[tuple[IntArray, IntArray, float]]:
-    """Every lane's blocks (`_blocks`) of detections at sensors k and k + 1."""
+def _segment_blocks(
+    s: Sensors, model: SegmentModel, k: int
+) -> list[tuple[IntArray, IntArray, float]]:
+    """Every lane's blocks (`_blocks`) of detections at sensors k and k + 1: each lane at k
+    with the lane at k + 1 that most of its vehicles reach (`lane_destinations`)."""
     f = s.features
     assert f is not None
     up, down = s.members(k), s.members(k + 1)
     blocks = []
-    for lane in np.unique(f.lane[up]):
-        if lane == NO_LANE:
-            continue
-        blocks.extend(_blocks(s, k, up[f.lane[up] == lane], down[f.lane[down] == lane]))
+    for lane, destination in lane_destinations(s, model, k).items():
+        blocks.extend(_blocks(s, k, up[f.lane[up] == lane], down[f.lane[down] == destination]))
     return blocks
+
+
+def lane_destinations(s: Sensors, model: SegmentModel, k: int) -> dict[int, int]:
+    """Each lane reported at sensor k, and the lane at k + 1 that its vehicles reach most often
+    by the segment's learned lane transitions (`features.learn_features`): its own, unless most
+    leave it. Where the road narrows, the lanes that end merge into those that go on, and where
+    numbering restarts (a lane drop on the left, numbered from the right, or the reverse) the
+    same lane goes on under another number; each lane's order still holds in the lane it
+    reaches (on SUMO's lane drops, 60-100 % of a segment's vehicles there change their lane's
+    number, and a chain of one lane number had nothing to align)."""
+    f, features = s.features, model.features
+    assert f is not None and features is not None
+    up_lanes = np.unique(f.lane[s.members(k)])
+    down_lanes = np.unique(f.lane[s.members(k + 1)])
+    down_lanes = down_lanes[down_lanes != NO_LANE]
+    destinations = {}
+    for lane in up_lanes[up_lanes != NO_LANE].tolist():
+        if not down_lanes.size:
+            break
+        reach = features.lane_transition[k, 1, lane, down_lanes]
+        destinations[lane] = int(down_lanes[int(np.argmax(reach))])
+    return destinations
 
 
 def _blocks(
@@ -357,7 +313,7 @@ def _pair_terms(
         log_travel = np.where(possible, np.log(travel), np.nan)
     speed = 0.5 * (s.speed[a][:, None] + s.speed[b][None, :])
     kinematic = log_travel - np.log(gap / speed)
-    gain = _kinematic_gain(s, params, a, b, kinematic)
+    gain = kinematic_gain(s, params, a, b, kinematic)
     prefix_mean, prefix_count, suffix_mean, suffix_count = lengths
     length_a, length_b = prefix_mean[a], suffix_mean[b]
     measured_a, measured_b = prefix_count[a] > 0, suffix_count[b] > 0
@@ -410,23 +366,6 @@ def _running_sums(values: FloatArray, key: IntArray) -> FloatArray:
     counts = np.diff(np.r_[start, key.size])
     result: FloatArray = total - np.repeat(before, counts)
     return result
-
-
-def _kinematic_gain(
-    s: Sensors, params: AssignmentParams, a: IntArray, b: IntArray, kinematic: FloatArray
-) -> FloatArray:
-    """Each pair's log density of its kinematic error relative to none: normal, of spread
-    KINEMATIC_SPREAD widened by the speed change between the two ends as the links' travel time
-    is (`gating.time_residual`), and at most KINEMATIC_CAP lower. Loose, since a vehicle in a
-    stop-and-go wave stops between two sensors that it passed moving; but in steady traffic it
-    keeps a chain from drifting by a dozen vehicles where lengths alike cannot pin it (a crawl
-    at 1.6 m/s over 200 m takes 125 s, not 50)."""
-    change = s.log_speed[b][None, :] - s.log_speed[a][:, None]
-    spread2 = KINEMATIC_SPREAD**2 + (params.velocity_change_ambiguity * change) ** 2
-    with np.errstate(invalid="ignore"):  # NaN where a pair is impossible (its gain is -inf)
-        z2 = np.nan_to_num(kinematic * kinematic / spread2, nan=0.0)
-    penalty: FloatArray = -0.5 * np.fmin(z2, KINEMATIC_CAP)
-    return penalty
 
 
 def _length_gain(
