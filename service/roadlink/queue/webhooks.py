@@ -16,7 +16,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 import orjson
-from sqlalchemy import select, update
+from sqlalchemy import Select, select, update
 from sqlalchemy.orm import Session
 
 from roadlink.db.drivers import driver_of
@@ -48,6 +48,12 @@ def record_job_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> int:
     ids = list(job_ids)
     if not ids:
         return 0
+    # The subscribers first, by one read: most deployments have none, and then the jobs need not
+    # be read back (a paper-size job's finish paid a flush and a load of its row for nothing).
+    deployments = select(Job.deployment_id).where(Job.id.in_(ids))
+    subscribed = _subscribers(session, deployments, JOB_FINISHED)
+    if not subscribed:
+        return 0
     session.flush()  # the jobs' new state and a succeeded job's result are read back below
     jobs = session.execute(
         select(Job, JobResult.accuracy)
@@ -55,9 +61,6 @@ def record_job_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> int:
         .where(Job.id.in_(ids))
         .execution_options(populate_existing=True)
     ).all()
-    subscribed = _subscribers(session, {job.deployment_id for job, _ in jobs}, JOB_FINISHED)
-    if not subscribed:
-        return 0
     now = _clock(session, None)
     count = 0
     for job, accuracy in jobs:
@@ -84,8 +87,11 @@ def record_vehicles_published(session: Session, vehicles: list[LiveVehicle]) -> 
     return count
 
 
-def _subscribers(session: Session, deployments: set[uuid.UUID], event_type: str) -> list[Webhook]:
-    """The webhooks of these deployments that receive `event_type`."""
+def _subscribers(
+    session: Session, deployments: set[uuid.UUID] | Select[Any], event_type: str
+) -> list[Webhook]:
+    """The webhooks of these deployments (ids, or a select of them) that receive
+    `event_type`."""
     hooks = session.scalars(select(Webhook).where(Webhook.deployment_id.in_(deployments))).all()
     return [h for h in hooks if event_type in h.event_types]
 

@@ -96,14 +96,22 @@ class Worker:
         """Rescue expired leases when due, take a live association's step when one is due, then
         claim and run one job; False if there was nothing to do."""
         self._rescue_when_due()
-        stepped = self.run_live_once()
-        return self.run_job_once() or stepped
+        # Whether a step or a job is due, in one read (a job's wake-up paid two); after a step,
+        # the job's question is asked again, as a job may have come meanwhile.
+        with self.sessions() as session:
+            live_due = has_live_step(session, worker_id=self.id)
+            job_due = None if live_due else has_runnable_job(session)
+        stepped = live_due and self._live_step()
+        return self._job_once(job_due) or stepped
 
     def run_live_once(self) -> bool:
         """Take one due step of a live association (issue 18); False if none was due."""
         with self.sessions() as session:
             if not has_live_step(session, worker_id=self.id):
                 return False
+        return self._live_step()
+
+    def _live_step(self) -> bool:
         try:
             return run_live_step(
                 self.sessions, worker_id=self.id, lease_seconds=self.settings.lease_seconds
@@ -122,9 +130,16 @@ class Worker:
 
     def run_job_once(self) -> bool:
         """Claim and run one job; False if none was queued."""
-        with self.sessions() as session:
-            if not has_runnable_job(session):
-                return False
+        return self._job_once(None)
+
+    def _job_once(self, due: bool | None) -> bool:
+        """Claim and run one job, unless `due` (a read just made; None: not asked yet) says
+        none is runnable."""
+        if due is None:
+            with self.sessions() as session:
+                due = has_runnable_job(session)
+        if not due:
+            return False
         with transaction(self.sessions) as session:
             job = claim_next_job(
                 session, worker_id=self.id, lease_seconds=self.settings.lease_seconds

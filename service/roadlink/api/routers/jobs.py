@@ -196,20 +196,20 @@ async def get_result(
     """The result of a succeeded job: the same document `roadlink associate --json` prints for
     the same detections and parameters. 409 while the job is unfinished (or if it failed or was
     cancelled)."""
+    stored: list[tuple[str, str] | None] = []  # the result, read with the job that succeeded
     job = await wait_for_job(
         job_id,
         wait=wait,
         max_wait=settings.max_wait_seconds,
-        read_job=lambda: run_in_threadpool(_read_job, sessions, job_id),
+        read_job=lambda: run_in_threadpool(_read_job_and_result, sessions, job_id, stored),
         finished_jobs=getattr(request.app.state, "finished_jobs", None),
         client_gone=request.is_disconnected,
     )
     if job.state != JobState.SUCCEEDED:
         raise ApiProblem(409, unfinished_detail(job))
-    stored = await run_in_threadpool(_read_result, sessions, job_id)
-    if stored is None:  # succeeded without a result cannot happen: both commit together
+    if stored[-1] is None:  # succeeded without a result cannot happen: both commit together
         raise ApiProblem(500, f"job {job_id} succeeded but its result is missing")
-    result_json, matrix_csv = stored
+    result_json, matrix_csv = stored[-1]
     if format == "csv":
         return Response(matrix_csv, media_type="text/csv")
     return Response(result_json, media_type="application/json")
@@ -395,12 +395,15 @@ def page_url(settings: Settings, job_id: uuid.UUID) -> str:
     return public_url(settings, f"/jobs/{job_id}")
 
 
-def _read_job(sessions: sessionmaker[Session], job_id: uuid.UUID) -> Job | None:
+def _read_job_and_result(
+    sessions: sessionmaker[Session], job_id: uuid.UUID, stored: list[tuple[str, str] | None]
+) -> Job | None:
+    """The job, and when it has succeeded its stored result appended to `stored`, in one read
+    (one hop to the thread pool, not two, between a job's finish and its waiting request's
+    answer)."""
     with sessions() as session:
-        return repository.get_job(session, job_id=job_id)
-
-
-def _read_result(sessions: sessionmaker[Session], job_id: uuid.UUID) -> tuple[str, str] | None:
-    with sessions() as session:
-        stored = repository.get_job_result(session, job_id=job_id)
-        return None if stored is None else (stored.result_json, stored.matrix_csv)
+        job = repository.get_job(session, job_id=job_id)
+        if job is not None and job.state == JobState.SUCCEEDED:
+            result = repository.get_job_result(session, job_id=job_id)
+            stored.append(None if result is None else (result.result_json, result.matrix_csv))
+        return job

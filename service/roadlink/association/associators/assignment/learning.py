@@ -6,6 +6,8 @@ spreads are shrunk towards those pooled over all segments, and its centres towar
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from roadlink.association.associators.assignment.anchors import Anchors
@@ -58,12 +60,14 @@ def learn_segments(
     # Detections of a track in road order: sort by (track, sensor).
     chain = s.by_track(confident, track)
     links: list[Links] = []
+    spans = []
     for span in range(1, model.max_span + 1):
         a, b = span_links(s, track, chain, span)
         if a.size < params.min_segment_samples:
             continue  # keep the prior for this span
         links.append((a, b))
-        learn_span(s, params, model, span, a, b)
+        spans.append(span)
+    learn_spans(s, params, model, spans, links)
     deviation = pace_deviations(s, track, confident)
     if deviation.size:
         model.preferred_speed_spread = spread(deviation)
@@ -113,77 +117,111 @@ def span_links(s: Sensors, track: IntArray, chain: IntArray, span: int) -> Links
     return a[forwards], b[forwards]
 
 
-def learn_span(
-    s: Sensors, params: AssignmentParams, model: SegmentModel, span: int, a: IntArray, b: IntArray
+def learn_spans(
+    s: Sensors,
+    params: AssignmentParams,
+    model: SegmentModel,
+    spans: list[int],
+    links: list[Links],
 ) -> None:
-    """Every segment's skew, bias, speed ratio and their spreads over `span` sensors, from the
-    links a -> b, into `model`. A segment's weight grows with its number of links: a segment seen
-    by ten targets must not get a spread measured on ten numbers alone."""
+    """Every segment's skew, bias, speed ratio and their spreads over each of `spans` sensors,
+    from that span's links a -> b, into `model`. A segment's weight grows with its number of
+    links: a segment seen by ten targets must not get a spread measured on ten numbers alone.
+
+    A segment is a span and its first sensor (`key`, span by span): each segment's numbers come
+    from its own links alone, so every span's segments are learned at once, their medians by
+    one `robust.run_medians` call where the runs are short (a paper-size batch paid numpy's
+    fixed costs span after span), the same numbers as span by span."""
+    if not spans:
+        return
+    n_sensors = s.positions.size
+    a = np.concatenate([a for a, _ in links])
+    b = np.concatenate([b for _, b in links])
+    row = np.repeat(np.arange(len(spans)), [a.size for a, _ in links])
     p = s.sensor[a]
+    key = row * n_sensors + p
     dt = s.time[b] - s.time[a]
     dx = s.positions[s.sensor[b]] - s.positions[p]
-    counts = np.bincount(p, minlength=s.positions.size)
+    counts = np.bincount(key, minlength=len(spans) * n_sensors)
     weight = counts / (counts + params.min_segment_samples)
-    skew = np.full(s.positions.size, KINEMATIC_SKEW)
-    segment = runs(p, counts)
+    skew = np.full(counts.size, KINEMATIC_SKEW)
+    segment = runs(key, counts)
     seen = np.flatnonzero(counts)
     # An even sample of each segment's links, taken before the gathers.
     here = [segment[k][:: max(1, segment[k].size // SKEW_SAMPLE)] for k in seen]
     learned = best_skews(dt, dx, s.speed[a], s.speed[b], here)
     skew[seen] = KINEMATIC_SKEW + weight[seen] * (learned - KINEMATIC_SKEW)
-    model.skew[:, span] = skew
-    log_bias = np.log(dt / travel_time(dx, s.speed[a], s.speed[b], skew[p]))
+    columns = np.array(spans)
+    model.skew[:, columns] = skew.reshape(len(spans), n_sensors).T
+    log_bias = np.log(dt / travel_time(dx, s.speed[a], s.speed[b], skew[key]))
     ratio = s.log_speed[b] - s.log_speed[a]
-    learn_centres_and_spreads(params, model, span, p, log_bias, ratio, counts, weight)
+    segments = Segments(columns, row, key, counts, weight, segment, seen)
+    learn_centres_and_spreads(params, model, segments, log_bias, ratio)
+
+
+@dataclass(frozen=True)
+class Segments:
+    """The segments of `learn_spans`: segment k is span `spans[k // n_sensors]` from sensor
+    `k % n_sensors`; each link's span (its row in `spans`) and segment, each segment's number
+    of links, weight and links (`robust.runs`), and the segments that have links."""
+
+    spans: IntArray
+    row: IntArray
+    key: IntArray
+    counts: IntArray
+    weight: FloatArray
+    links: list[IntArray]
+    seen: IntArray
 
 
 def learn_centres_and_spreads(
     params: AssignmentParams,
     model: SegmentModel,
-    span: int,
-    p: IntArray,
+    g: Segments,
     log_bias: FloatArray,
     ratio: FloatArray,
-    counts: IntArray,
-    weight: FloatArray,
 ) -> None:
-    """Each segment's log bias and log speed ratio (of links starting at sensor p), and their
-    spreads: the spreads shrunk towards the pooled ones by `weight`, the centres towards the
-    prior's by precision (the prior is a rough guess, so a handful of links overrule it)."""
-    n_sensors = counts.size
-    seen = np.flatnonzero(counts)
-    segment = runs(p, counts)
+    """Each segment's log bias and log speed ratio, and their spreads: the spreads shrunk
+    towards those pooled over the span's segments by `weight`, the centres towards the prior's
+    by precision (the prior is a rough guess, so a handful of links overrule it)."""
+    n_segments, n_spans = g.counts.size, g.spans.size
+    n_sensors = n_segments // n_spans
+    seen = g.seen
     # The two residuals side by side: each segment's medians of both from one sort.
     residual = np.stack([log_bias, ratio], axis=1)
-    centre = np.zeros((n_sensors, 2))
-    centre[seen] = segment_medians(residual, segment, seen)
-    bias_centre, ratio_centre = centre[:, 0], centre[:, 1]
-    # Spreads pooled over all segments, each residual taken from its own segment's median.
-    pooled_time = spread(log_bias - bias_centre[p])
-    pooled_speed = spread(ratio - ratio_centre[p])
+    centre = np.zeros((n_segments, 2))
+    centre[seen] = segment_medians(residual, g.links, seen)
+    about = residual - centre[g.key]
+    # Spreads pooled over a span's segments, each residual taken from its own segment's median.
+    bounds = np.searchsorted(g.row, np.arange(n_spans + 1))
+    pooled = np.array(
+        [
+            [spread(about[lo:hi, 0]), spread(about[lo:hi, 1])]
+            for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True)
+        ]
+    )
     # Each segment's own: the median absolute deviation from its median (`spread_about`).
-    mad = segment_medians(np.abs(residual - centre[p]), segment, seen)
-    for i, k in enumerate(seen.tolist()):
-        w, n_k = weight[k], counts[k]
-        own_time = MAD_TO_STD * float(mad[i, 0])
-        own_speed = MAD_TO_STD * float(mad[i, 1])
-        time_spread = np.sqrt(w * own_time**2 + (1 - w) * pooled_time**2)
-        speed_spread = np.sqrt(w * own_speed**2 + (1 - w) * pooled_speed**2)
-        model.log_bias[k, span] = posterior_centre(
-            bias_centre[k], time_spread, n_k, model.log_bias[k, span], params.travel_time_spread
-        )
-        model.log_speed_ratio[k, span] = posterior_centre(
-            ratio_centre[k],
-            speed_spread,
-            n_k,
-            model.log_speed_ratio[k, span],
-            params.velocity_change_spread,
-        )
-        model.time_spread[k, span] = time_spread
-        model.speed_spread[k, span] = speed_spread
-    unseen = counts == 0
-    model.time_spread[unseen, span] = pooled_time
-    model.speed_spread[unseen, span] = pooled_speed
+    mad = segment_medians(np.abs(about), g.links, seen)
+    # Every seen segment at once, by the operations that were made segment by segment (so the
+    # same numbers; a square as libm's pow makes it, `squares`).
+    w, n_k = g.weight[seen], g.counts[seen]
+    of_span = seen // n_sensors
+    pooled_squared = squares(pooled.reshape(-1)).reshape(pooled.shape)[of_span]
+    time_spread = np.sqrt(w * squares(MAD_TO_STD * mad[:, 0]) + (1 - w) * pooled_squared[:, 0])
+    speed_spread = np.sqrt(w * squares(MAD_TO_STD * mad[:, 1]) + (1 - w) * pooled_squared[:, 1])
+    at = (seen % n_sensors, g.spans[of_span])
+    model.log_bias[at] = posterior_centre(
+        centre[seen, 0], time_spread, n_k, model.log_bias[at], params.travel_time_spread
+    )
+    model.log_speed_ratio[at] = posterior_centre(
+        centre[seen, 1], speed_spread, n_k, model.log_speed_ratio[at], params.velocity_change_spread
+    )
+    model.time_spread[at] = time_spread
+    model.speed_spread[at] = speed_spread
+    unseen = np.flatnonzero(g.counts == 0)
+    at = (unseen % n_sensors, g.spans[unseen // n_sensors])
+    model.time_spread[at] = pooled[unseen // n_sensors, 0]
+    model.speed_spread[at] = pooled[unseen // n_sensors, 1]
 
 
 def segment_medians(values: FloatArray, segment: list[IntArray], seen: IntArray) -> FloatArray:
@@ -279,11 +317,23 @@ def skew_errors(
 
 
 def posterior_centre(
-    measured: float, spread: float, count: int, prior: float, prior_spread: float
-) -> float:
-    """Precision-weighted mean of a measured centre (from `count` values) and a prior guess."""
-    data_precision = count / max(spread, MIN_RELATIVE_SPREAD) ** 2
+    measured: FloatArray,
+    spread: FloatArray,
+    count: IntArray,
+    prior: FloatArray,
+    prior_spread: float,
+) -> FloatArray:
+    """Precision-weighted mean of a measured centre (from `count` values) and a prior guess,
+    segment by segment."""
+    data_precision = count / squares(np.maximum(spread, MIN_RELATIVE_SPREAD))
     prior_precision = 1.0 / prior_spread**2
     return (data_precision * measured + prior_precision * prior) / (
         data_precision + prior_precision
     )
+
+
+def squares(values: FloatArray) -> FloatArray:
+    """Each value squared as a float's `** 2` squares it (libm's pow, which differs from numpy's
+    x * x in the last bit of about one square in a thousand here), so that numbers worked out
+    for all segments at once are those worked out one segment at a time."""
+    return np.array([value**2 for value in values.tolist()], dtype=np.float64)

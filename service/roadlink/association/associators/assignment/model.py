@@ -109,7 +109,7 @@ class Tails:
             share = np.logaddexp(core, tail, out=core)
             np.subtract(tail, share, out=share)
             np.exp(share, out=share)
-            total = float(share.sum())
+            total = float(np.add.reduce(share))  # share.sum(), without its Python wrapper
             w = min(max(total / z2.size, TAIL_WEIGHT_RANGE[0]), TAIL_WEIGHT_RANGE[1])
             s = math.sqrt(float(share @ z2) / max(total, 1e-9))
             s = min(max(s, TAIL_MIN_SCALE), TAIL_MAX_SCALE)

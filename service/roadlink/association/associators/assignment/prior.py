@@ -25,7 +25,7 @@ from roadlink.association.associators.assignment.params import (
     PRIOR_TEST_SAMPLE,
     AssignmentParams,
 )
-from roadlink.association.associators.assignment.robust import median, spread
+from roadlink.association.associators.assignment.robust import median, run_medians, spread
 from roadlink.association.associators.assignment.sensors import (
     KINEMATIC_SKEW,
     Sensors,
@@ -61,10 +61,15 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
     log_bias = np.zeros(shape)
     log_ratio = np.zeros(shape)
     medians = s.median_speed
-    for p in range(n_sensors - 1):
-        # A few hundred detections, evenly spread in time, are plenty to find a mode.
-        sample = s.members(p)[:: max(1, s.members(p).size // PRIOR_SAMPLE)]
-        log_bias[p, 1] = travel_time_prior(s, sample, p + 1)
+    # A few hundred detections, evenly spread in time, are plenty to find a mode.
+    samples = [
+        s.members(p)[:: max(1, s.members(p).size // PRIOR_SAMPLE)] for p in range(n_sensors - 1)
+    ]
+    for p, sample in enumerate(samples):
+        if sample.size >= PRIOR_TEST_SAMPLE:
+            log_bias[p, 1] = travel_time_prior(s, sample, p + 1)
+    few = [p for p, sample in enumerate(samples) if sample.size < PRIOR_TEST_SAMPLE]
+    log_bias[few, 1] = few_targets_priors(s, [samples[p] for p in few], np.array(few) + 1)
 
     # A typical target's travel time over every segment, and its kinematic prediction.
     def kinematic(p: int, q: int) -> float:
@@ -121,6 +126,97 @@ def travel_time_prior(s: Sensors, a: IntArray, q: int) -> float:
     # background is rough (arrivals bunch in queues, speeds mix, platoons repeat at one
     # headway), so a bump that is merely above it is no evidence of a bias.
     return best if best_significance >= PRIOR_SIGNIFICANCE else 0.0
+
+
+def few_targets_priors(s: Sensors, samples: list[IntArray], q: IntArray) -> FloatArray:
+    """`travel_time_prior(s, samples[k], q[k])` of segments whose samples hold a handful of
+    targets (fewer than PRIOR_TEST_SAMPLE), the same numbers: their candidate pairs and
+    histograms worked out for all those segments at once (a paper-size batch paid numpy's fixed
+    costs segment after segment), then each segment's mode, as `excess_over_uniform` finds it
+    keeping every pair."""
+    prior = np.zeros(q.size)
+    ready = [k for k in range(q.size) if samples[k].size]
+    if not ready:
+        return prior
+    few = FewPairs.of(s, [samples[k] for k in ready], q[ready])
+    n = len(ready)
+    counts = bin_counts(few.values, few.value_of, n).reshape(n, PRIOR_BINS.size - 1)
+    values = np.split(few.values, np.cumsum(np.bincount(few.value_of, minlength=n))[:-1])
+    for k in np.flatnonzero(few.pairs).tolist():
+        thinning = 1.0 if few.any_ahead[k] else 0.0
+        background = thinning * few.rates[k] * few.typical_sums[k] * PRIOR_BIN_GROWTH
+        excess = np.convolve(counts[k] - background, PRIOR_SMOOTHING, mode="same")
+        if excess.max() > 0:
+            prior[ready[k]] = BiasHistogram(values[k], excess, excess).centre()
+    return prior
+
+
+@dataclass
+class FewPairs:
+    """`CandidatePairs.within_reach` and `log_ratios` of several segments at once: the log
+    ratios within range (`values`, segment by segment) and each one's segment (`value_of`);
+    each segment's number of pairs, whether one is ahead in time, its rate of arrivals and the
+    sum of its sample's typical travel times."""
+
+    values: FloatArray
+    value_of: IntArray
+    pairs: IntArray
+    any_ahead: BoolArray
+    rates: list[float]
+    typical_sums: list[float]
+
+    @classmethod
+    def of(cls, s: Sensors, samples: list[IntArray], q: IntArray) -> FewPairs:
+        sizes = np.array([sample.size for sample in samples])
+        bounds = np.cumsum(sizes) - sizes
+        a = np.concatenate(samples)
+        own = np.repeat(np.arange(q.size), sizes)
+        length = s.positions[q] - s.positions[s.sensor[a[bounds]]]
+        typical = travel_time(length[own], s.speed[a], s.median_speed[q][own])
+        medians = run_medians(typical, sizes)
+        if medians is None:
+            medians = np.array([median(t) for t in np.split(typical, bounds[1:])])
+        shift = PRIOR_SIDEBANDS[1] * medians
+        reach = travel_time(
+            np.exp(PRIOR_LOG_RANGE) * length[own], s.speed[a], s.slowest_speed[q][own]
+        )
+        reach += shift[own]
+        earliest, latest = s.time[a] - shift[own], s.time[a] + reach
+        first, count = np.empty_like(a), np.empty_like(a)
+        rates, typical_sums = [], []
+        for qk, lo_a, hi_a in zip(
+            q.tolist(), bounds.tolist(), (bounds + sizes).tolist(), strict=True
+        ):
+            lo, hi = int(s.start[qk]), int(s.start[qk + 1])
+            times = s.sorted_time[lo:hi]
+            first[lo_a:hi_a] = np.searchsorted(times, earliest[lo_a:hi_a], side="right")
+            count[lo_a:hi_a] = np.searchsorted(times, latest[lo_a:hi_a]) - first[lo_a:hi_a]
+            first[lo_a:hi_a] += lo
+            span_of_time = float(times[-1] - times[0])
+            rates.append((hi - lo - 1) / span_of_time if span_of_time > 0 else 0.0)
+            typical_sums.append(float(typical[lo_a:hi_a].sum()))
+        np.maximum(count, 0, out=count)
+        pa = np.repeat(a, count)
+        at = (
+            np.repeat(first, count)
+            + np.arange(pa.size)
+            - np.repeat(np.cumsum(count) - count, count)
+        )
+        pb = s.order[at]
+        pair_of = np.repeat(own, count)
+        kinematic = travel_time(length[pair_of], s.speed[pa], s.speed[pb])
+        travel = s.time[pb] - s.time[pa]
+        ahead = travel > 0
+        values = np.log(travel[ahead] / kinematic[ahead])
+        within = np.abs(values) <= PRIOR_LOG_RANGE
+        return cls(
+            values[within],
+            pair_of[ahead][within],
+            np.bincount(pair_of, minlength=q.size),
+            np.bincount(pair_of[ahead], minlength=q.size) > 0,
+            rates,
+            typical_sums,
+        )
 
 
 @dataclass
@@ -226,14 +322,17 @@ class CandidatePairs:
         return BiasHistogram.of(values, background)
 
 
-def bin_counts(values: FloatArray) -> FloatArray:
+def bin_counts(values: FloatArray, of: IntArray | None = None, histograms: int = 1) -> FloatArray:
     """How many values fall in each of PRIOR_BINS (the last bin closed), as `np.histogram`
     counts them but for a value on an edge, which rounding may put in either bin; without its
-    sort, since the bins are even."""
+    sort, since the bins are even. With `of`: the value's histogram among `histograms`, all
+    counted at once, one after another."""
     n_bins = PRIOR_BINS.size - 1
-    inside = values[(values >= PRIOR_BINS[0]) & (values <= PRIOR_BINS[-1])]
-    index = np.minimum(((inside - PRIOR_BINS[0]) / PRIOR_BIN).astype(np.int64), n_bins - 1)
-    return np.bincount(index, minlength=n_bins).astype(np.float64)
+    inside = (values >= PRIOR_BINS[0]) & (values <= PRIOR_BINS[-1])
+    index = np.minimum(((values[inside] - PRIOR_BINS[0]) / PRIOR_BIN).astype(np.int64), n_bins - 1)
+    if of is not None:
+        index += of[inside] * n_bins
+    return np.bincount(index, minlength=n_bins * histograms).astype(np.float64)
 
 
 @dataclass
