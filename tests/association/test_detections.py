@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -167,6 +168,8 @@ def test_classes_coded_by_the_parser_are_the_codes_a_block_would_make():
         assert d.class_codes().words == expected.words == [None, "truck", "car"]
         assert d.class_codes().codes.tolist() == expected.codes.tolist()
     assert from_codes.class_codes() is not listed.class_codes()
+    replaced = dataclasses.replace(from_codes, vehicle_class=np.array(classes[::-1], dtype=object))
+    assert replaced.class_codes().words == [None, "car", "truck"]  # its own, not the parser's
     picked = from_codes.take([5, 1])
     assert picked.class_codes().words == [None, "car", "truck"]
     assert picked.class_codes().codes.tolist() == [1, 2]
