@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -6,6 +7,7 @@ import pytest
 from roadlink.association import associate
 from roadlink.association.associators import AssociationError
 from roadlink.association.detections import DetectionError, Detections, concatenate
+from roadlink.association.feature_columns import CodedTexts, classes_in_order
 
 
 def make(**overrides):
@@ -149,3 +151,25 @@ def test_only_the_named_features_can_be_kept():
     assert d.only_features("length", "vehicle_class").features == ("length", "vehicle_class")
     with pytest.raises(ValueError, match="not a detector feature: speed"):
         d.only_features("speed")
+
+
+def test_classes_coded_by_the_parser_are_the_codes_a_block_would_make():
+    """Classes given coded keep their codes in block order (`class_codes`); given as a list, or
+    after `take`, they are coded from the values: the same words and codes either way."""
+    classes = [None, "truck", "car", "truck", None, "car"]
+    words = list(dict.fromkeys(classes))
+    coded = CodedTexts(words, np.array([words.index(c) for c in classes]))
+    columns = {"position": [0.0, 100.0] * 3, "velocity": [20.0] * 6, "timestamp": range(6)}
+    from_codes = Detections.from_columns(**columns, vehicle_class=coded)
+    listed = Detections.from_columns(**columns, vehicle_class=classes)
+    expected = classes_in_order(classes)
+    for d in (from_codes, listed):
+        assert d.vehicle_class.tolist() == classes
+        assert d.class_codes().words == expected.words == [None, "truck", "car"]
+        assert d.class_codes().codes.tolist() == expected.codes.tolist()
+    assert from_codes.class_codes() is not listed.class_codes()
+    replaced = dataclasses.replace(from_codes, vehicle_class=np.array(classes[::-1], dtype=object))
+    assert replaced.class_codes().words == [None, "car", "truck"]  # its own, not the parser's
+    picked = from_codes.take([5, 1])
+    assert picked.class_codes().words == [None, "car", "truck"]
+    assert picked.class_codes().codes.tolist() == [1, 2]

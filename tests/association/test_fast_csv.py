@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from roadlink.association.csvio import read_csv_columns, write_detections_csv
 from roadlink.association.detections import COLUMNS, Detections
 from roadlink.association.fast_csv import fast_detections
+from roadlink.association.feature_columns import classes_in_order
 from roadlink.simulation import preset, simulate
 
 
@@ -71,6 +72,9 @@ def test_without_sensor_or_detection_ids_they_are_generated_as_the_exact_reader_
         # Features, some not reported (empty cells), a lane written as a float.
         "position,velocity,timestamp,lane,length,vehicle_class\n"
         "0,20,1,0,4.5,car\n100,20,6,,,\n200,20,11,2.0,12,truck\n300,20,16,255,100,bus\n",
+        # Features no row reports, and lanes and lengths every row does.
+        "position,velocity,timestamp,lane,length,vehicle_class\n0,20,1,,,\n100,20,6,,,\n",
+        "position,velocity,timestamp,lane,length\n0,20,1,-0,0.1\n100,20,6,3,99.9\n",
     ],
 )
 def test_plain_variants_read_as_the_exact_reader_reads_them(text):
@@ -114,6 +118,12 @@ def test_plain_variants_read_as_the_exact_reader_reads_them(text):
         "position,velocity,timestamp,length\n0,20,1,inf\n",
         "position,velocity,timestamp,length\n0,20,1,100.5\n",
         "position,velocity,timestamp,vehicle_class\n0,20,1," + "x" * 33 + "\n",
+        # A "nan" beside empty cells (read as NaN too), an infinity or a half lane among them.
+        "position,velocity,timestamp,length\n0,20,1,\n100,20,6,nan\n200,20,11,4\n",
+        "position,velocity,timestamp,lane\n0,20,1,\n100,20,6,nan\n200,20,11,1\n",
+        "position,velocity,timestamp,lane\n0,20,1,\n100,20,6,-inf\n",
+        "position,velocity,timestamp,lane\n0,20,1,\n100,20,6,0.5\n",
+        "position,velocity,timestamp,length\n0,20,1,\n100,20,6,inf\n",
         "position,velocity,timestamp\n",
         "",
     ],
@@ -224,6 +234,21 @@ def test_text_columns_share_one_object_per_distinct_value():
     for name in ("sensor_id", "target"):
         values = getattr(fast, name).tolist()
         assert len({id(v) for v in values}) == len(set(values))
+
+
+def test_classes_come_coded_as_a_block_codes_them():
+    """The fast path hands on the classes' codes (`Detections.class_codes`), in the order a
+    block numbers them: the same as coding the classes it read, row by row."""
+    text = (
+        "position,velocity,timestamp,vehicle_class\n"
+        "0,20,1,\n100,20,6,van\n0,21,2,car\n100,21,7,van\n0,22,3,\n100,22,8,car\n"
+    )
+    fast = fast_detections(text.encode())
+    assert fast is not None
+    assert fast.class_codes() is fast.class_codes()  # the parser's, not coded again
+    expected = classes_in_order(fast.vehicle_class.tolist())
+    assert fast.class_codes().words == expected.words == [None, "van", "car"]
+    assert fast.class_codes().codes.tolist() == expected.codes.tolist() == [0, 1, 2, 1, 0, 2]
 
 
 cells = st.text(alphabet=st.characters(min_codepoint=0, max_codepoint=0x2FF), max_size=6)

@@ -15,6 +15,7 @@ from roadlink.association.feature_columns import (
     NO_LANE,
     CodedTexts,
     class_column,
+    classes_in_order,
     json_floats,
     lane_column,
     length_column,
@@ -70,6 +71,30 @@ def test_coded_classes_read_as_the_same_classes_listed(classes):
     expected = class_column(len(classes), classes, listed)
     assert class_column(len(classes), coded, from_codes).tolist() == expected.tolist()
     assert from_codes == listed
+
+
+@pytest.mark.parametrize(
+    ("words", "codes"),
+    [
+        (["car", None, "truck"], [0, 1, 2, 0, 1]),
+        ([None, "5"], [0, 1, 1, 0]),
+        (["truck", "car", None], [1, 2, 0, 1]),  # words listed out of the rows' order
+        (["car", "unused", None], [0, 0, 2]),  # a word no row holds
+        (["car", "truck"], [1, 1, 0]),  # every row reports one
+        ([None], [0, 0]),
+        (["car"], []),
+    ],
+)
+def test_coded_classes_in_order_are_coded_as_the_listed_classes_are(words, codes):
+    """`in_order` codes a parser's codes as a detection block does the listed classes: None
+    first, then the words in order of first appearance."""
+    coded = CodedTexts(words, np.array(codes, dtype=np.int64)).in_order()
+    listed = [words[c] for c in codes]
+    expected = classes_in_order(listed)
+    assert coded.words == expected.words
+    assert coded.words[0] is None
+    assert coded.codes.tolist() == expected.codes.tolist()
+    assert [coded.words[c] for c in coded.codes] == listed
 
 
 @pytest.mark.parametrize(

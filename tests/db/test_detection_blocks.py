@@ -16,6 +16,8 @@ from sqlalchemy import Engine, Uuid, column, delete, insert, table, text
 
 from roadlink.association.csvio import write_detections_csv
 from roadlink.association.detections import COLUMNS, NO_LANE, Detections, concatenate
+from roadlink.association.fast_csv import fast_detections
+from roadlink.association.feature_columns import CodedTexts
 from roadlink.db import repository
 from roadlink.db.detection_blocks import TEXT_COLUMNS, Block, detections_of, encode
 from roadlink.db.engine import make_engine, make_session_factory
@@ -69,6 +71,23 @@ def test_classes_reported_only_after_the_first_detection_are_stored() -> None:
     block = Block.parse(encode(with_class))
     assert block.texts("vehicle_class") == classes
     assert Block.parse(encode(d)).offsets["vehicle_class"][1] == 0
+
+
+def test_a_block_is_the_same_bytes_whether_the_parser_coded_the_classes_or_not() -> None:
+    """The CSV fast path and a JSON batch hand on their classes coded; detections built from
+    arrays are coded at encoding: the same block, byte for byte."""
+    d = _featured()
+    text = write_detections_csv(d)
+    fast = fast_detections(text.encode())
+    assert fast is not None and fast.__dict__["_coded_classes"] is not None
+    words = list(dict.fromkeys(d.vehicle_class.tolist()))
+    coded = CodedTexts(words, np.array([words.index(c) for c in d.vehicle_class.tolist()]))
+    columns = {name: getattr(d, name) for name in COLUMNS[:8]}
+    from_codes = Detections.from_columns(**columns, vehicle_class=coded)
+    assert from_codes.__dict__["_coded_classes"] is not None
+    plain = Detections(*(getattr(d, name) for name in COLUMNS))
+    assert plain.__dict__["_coded_classes"] is None
+    assert encode(fast) == encode(plain) == encode(from_codes)
 
 
 def test_masks_pick_rows_in_order_across_blocks_with_and_without_features() -> None:

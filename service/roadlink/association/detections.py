@@ -8,7 +8,7 @@ features in `feature_columns`): a `Detections` object is always valid.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, InitVar, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -27,7 +27,8 @@ from roadlink.association.columns import (
 from roadlink.association.feature_columns import (
     NO_LANE,
     CodedTexts,
-    class_column,
+    classes_in_order,
+    coded_class_column,
     lane_column,
     length_column,
 )
@@ -76,9 +77,14 @@ class Detections:
     lane: IntArray = field(default=None)  # type: ignore[arg-type]
     length: FloatArray = field(default=None)  # type: ignore[arg-type]
     vehicle_class: ObjectArray = field(default=None)  # type: ignore[arg-type]
+    # The classes as a detection block codes them, when the parser that built them had them
+    # coded so (`CodedTexts.in_order`); not a column: see `class_codes`.
+    _: KW_ONLY
+    coded_classes: InitVar[CodedTexts | None] = None
 
-    def __post_init__(self) -> None:
+    def __post_init__(self, coded_classes: CodedTexts | None) -> None:
         fill_unreported_features(self, self.position.size)
+        object.__setattr__(self, "_coded_classes", coded_classes)
 
     @classmethod
     def from_columns(
@@ -121,7 +127,7 @@ class Detections:
             )
         lanes = lane_column(n, lane, problems)
         lengths = length_column(n, length, problems)
-        classes = class_column(n, vehicle_class, problems)
+        classes, coded = coded_class_column(n, vehicle_class, problems)
         if problems:
             raise DetectionError(problems)
         _check_travel_times(pos, vel, problems)
@@ -135,7 +141,9 @@ class Detections:
             raise DetectionError(problems)
         # One sensor's detections are valid (a gateway per sensor is common); association needs
         # two sensor positions, and `associate` says so.
-        return cls(pos, vel, ts, sensors, det_ids, labels, lanes, lengths, classes)
+        return cls(
+            pos, vel, ts, sensors, det_ids, labels, lanes, lengths, classes, coded_classes=coded
+        )
 
     def __len__(self) -> int:
         return int(self.position.size)
@@ -179,6 +187,13 @@ class Detections:
         if name == "length":
             return [None if v != v else v for v in values]  # NaN is the one value not itself
         return values
+
+    def class_codes(self) -> CodedTexts:
+        """The vehicle classes as a detection block stores them (`CodedTexts.in_order`: word 0
+        None, then the classes in order of first appearance, and a code per detection): as the
+        parser coded them when it did (a batch's few classes, not one per row), else coded here."""
+        coded: CodedTexts | None = self.__dict__.get("_coded_classes")
+        return coded if coded is not None else classes_in_order(self.vehicle_class.tolist())
 
     @property
     def reference_position(self) -> float:

@@ -24,7 +24,13 @@ import numpy as np
 
 from roadlink.association.columns import MAX_ABS_VALUE
 from roadlink.association.detections import Detections
-from roadlink.association.feature_columns import MAX_CLASS_CHARS, MAX_LANE, MAX_LENGTH, NO_LANE
+from roadlink.association.feature_columns import (
+    MAX_CLASS_CHARS,
+    MAX_LANE,
+    MAX_LENGTH,
+    NO_LANE,
+    CodedTexts,
+)
 
 if TYPE_CHECKING:
     import polars as pl
@@ -273,31 +279,44 @@ def _detection_ids(frame: pl.DataFrame) -> Any:
 
 def _features(frame: pl.DataFrame, n: int) -> dict[str, Any] | None:
     """The detector features the file has columns for, as the exact validators would return
-    them (an absent one `Detections` fills as not reported): lane and length read by polars as
-    numbers (an empty cell: not reported), checked by numpy, the classes one `str` per distinct
-    value; None when a value is one the exact reader would refuse, or reads otherwise."""
+    them (an absent one `Detections` fills as not reported), with the classes coded as a
+    detection block stores them (`coded_classes`); None when a value is one the exact reader
+    would refuse, or reads otherwise."""
     features: dict[str, Any] = {}
     for name in ("lane", "length"):
         if name not in frame.columns:
             continue
-        # An empty cell is null (not reported); a "nan" is NaN, which the exact reader refuses.
-        reported = ~frame[name].is_null().to_numpy()
-        values = frame[name].to_numpy()
-        value = values[reported]
-        if name == "lane":
-            valid = (value == np.round(value)) & (value >= 0) & (value <= MAX_LANE)
-        else:
-            valid = np.isfinite(value) & (value > 0) & (value <= MAX_LENGTH)
-        if not np.all(valid):  # NaN and infinities fail every comparison they meet here
+        values = _reported_numbers(frame[name], name == "lane")
+        if values is None:
             return None
-        if name == "lane":
-            features[name] = np.where(reported, np.nan_to_num(values), NO_LANE).astype(np.int64)
-        else:
-            features[name] = np.where(reported, values, np.nan)
+        features[name] = values
     if "vehicle_class" in frame.columns:
-        classes = frame["vehicle_class"]
-        names, codes = text_codes(classes)
+        names, codes = text_codes(frame["vehicle_class"])  # an empty cell coded len(names)
         if any(len(name) > MAX_CLASS_CHARS for name in names):
             return None
-        features["vehicle_class"] = _shared(classes, names, codes)
+        coded = CodedTexts([*names, None], codes).in_order()
+        features["vehicle_class"] = np.array(coded.words, dtype=object)[coded.codes]
+        features["coded_classes"] = coded
     return features
+
+
+def _reported_numbers(column: pl.Series, lanes: bool) -> Any:
+    """A lane or length column read by polars as numbers (an empty cell null: not reported) as
+    `Detections` holds it, checked whole by its least and greatest value (NaN, where a cell is
+    empty, ignored); None when a value is one the exact reader refuses: a "nan" (counted
+    apart from the empty cells), an infinity or a value out of range (either fails a bound), a
+    lane that is not a whole number."""
+    values = column.to_numpy()  # NaN where a cell is empty
+    empty = column.null_count()
+    if empty == len(values):
+        return np.full(empty, NO_LANE, dtype=np.int64) if lanes else values
+    if np.count_nonzero(np.isnan(values)) != empty:
+        return None
+    low, high = float(np.fmin.reduce(values)), float(np.fmax.reduce(values))
+    if not lanes:
+        return values if low > 0 and high <= MAX_LENGTH else None
+    # A NaN is the one value unequal to itself rounded: a whole lane's only unequal ones.
+    whole = np.count_nonzero(np.round(values) != values) == empty
+    if not (whole and low >= 0 and high <= MAX_LANE):
+        return None
+    return (np.nan_to_num(values, nan=NO_LANE) if empty else values).astype(np.int64)

@@ -7,8 +7,10 @@ detection. `Detections.from_columns` calls these; each lists what is wrong in `p
 
 from __future__ import annotations
 
+from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import count
 
 import numpy as np
 
@@ -147,22 +149,62 @@ class CodedTexts:
     def __len__(self) -> int:
         return len(self.codes)
 
+    def in_order(self) -> CodedTexts:
+        """The same column coded as a detection block stores it: word 0 is None (code 0, not
+        reported, whether or not a row is), then the words rows hold, in order of first
+        appearance (a word no row holds is dropped)."""
+        n, k = len(self.codes), len(self.words)
+        first = np.full(k, n, dtype=np.intp)
+        np.minimum.at(first, self.codes, np.arange(n))
+        held = np.flatnonzero(first < n)
+        held = held[np.argsort(first[held], kind="stable")]
+        words: list[str | None] = [None]
+        remap = np.zeros(k, dtype=np.int64)
+        for code in held.tolist():
+            if self.words[code] is not None:
+                remap[code] = len(words)
+                words.append(self.words[code])
+        return CodedTexts(words, remap[self.codes])
+
+
+def classes_in_order(classes: Sequence[str | None]) -> CodedTexts:
+    """Valid vehicle classes (str or None) coded as `CodedTexts.in_order` codes them: one dict
+    lookup a row, numbered in order of first appearance (a batch has a handful of classes)."""
+    listed = list(classes)
+    index: defaultdict[str | None, int] = defaultdict(count(1).__next__, {None: 0})
+    # Counted only when the first reports none (a batch with classes mostly has one there).
+    if listed and not (listed[0] is None and listed.count(None) == len(listed)):
+        codes = np.fromiter(map(index.__getitem__, listed), np.int64, len(listed))
+    else:
+        codes = np.zeros(len(listed), dtype=np.int64)
+    return CodedTexts(list(index), codes)
+
 
 def class_column(
     n: int, given: Sequence[str | None] | CodedTexts | None, problems: list[Problem]
 ) -> ObjectArray:
     """Vehicle classes: short words, None where blank."""
+    return coded_class_column(n, given, problems)[0]
+
+
+def coded_class_column(
+    n: int, given: Sequence[str | None] | CodedTexts | None, problems: list[Problem]
+) -> tuple[ObjectArray, CodedTexts | None]:
+    """`class_column`, and the classes coded in order (`CodedTexts.in_order`) when they came
+    coded and valid as they are: then a detection block stores those codes without coding the
+    rows again."""
     if isinstance(given, CodedTexts):
         words = np.array(given.words, dtype=object)
         if _plain_classes(given.words):
-            return np.asarray(words[given.codes])
-        return class_column(n, words[given.codes].tolist(), problems)  # to name each problem
+            return np.asarray(words[given.codes]), given.in_order()
+        # Read as a list, to name each problem.
+        return class_column(n, words[given.codes].tolist(), problems), None
     out = np.full(n, None, dtype=object)
     if given is None:
-        return out
+        return out, None
     if _plain_classes(given):
         out[:] = given  # into the array as one list: twice np.array's speed here
-        return out
+        return out, None
     for i, value in enumerate(given):
         if value is not None and not isinstance(value, str):
             problems.append(Problem(i + 1, "vehicle_class", f"must be text, got {value!r}"))
@@ -177,7 +219,7 @@ def class_column(
                 )
             )
         out[i] = text or None
-    return out
+    return out, None
 
 
 def _plain_classes(given: Sequence[str | None]) -> bool:

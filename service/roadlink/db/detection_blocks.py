@@ -30,10 +30,8 @@ every value reads back exactly as it was validated.
 from __future__ import annotations
 
 import struct
-from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
-from itertools import count
 from typing import Any
 
 import numpy as np
@@ -67,7 +65,7 @@ def encode(detections: Detections) -> bytes:
     d = detections
     lane_flags, lanes = _lane_bytes(d.lane)
     length_flags, lengths = _length_bytes(d.length)
-    class_flags, codes, vocabulary = _class_bytes(d.vehicle_class)
+    class_flags, codes, vocabulary = _class_bytes(d)
     texts = [orjson.dumps(getattr(d, name).tolist()) for name in TEXT_COLUMNS[:3]]
     texts.append(vocabulary)
     flags = lane_flags | length_flags | class_flags
@@ -93,33 +91,37 @@ def _lane_bytes(lanes: IntArray) -> tuple[int, bytes]:
 
 def _length_bytes(lengths: FloatArray) -> tuple[int, bytes]:
     """The length flags and bytes: as tenths when each length is one that many tenths divide
-    back to exactly (a detector's lengths mostly are, at a quarter of the bytes)."""
-    measured = ~np.isnan(lengths)
-    if not measured.any():
+    back to exactly (a detector's lengths mostly are, at a quarter of the bytes).
+
+    Each test is one pass that lets NaN (not measured) through as it is counted: the least
+    and greatest tenths ignore NaN, and a NaN is the one value not equal to itself divided
+    back, so that the lengths divide back exactly when the only unequal ones are the NaNs."""
+    unmeasured = int(np.count_nonzero(np.isnan(lengths)))
+    if unmeasured == lengths.size:
         return 0, b""
-    tenths = np.round(lengths * 10)
-    fits = np.nanmax(tenths) <= np.iinfo(np.int16).max and np.nanmin(tenths) >= 0
-    if fits and np.array_equal(tenths / 10, lengths, equal_nan=True):
-        coded = np.where(measured, tenths, _NO_TENTHS).astype("<i2")
-        return _LENGTH | _LENGTH_TENTHS, coded.tobytes()
+    tenths = np.multiply(lengths, 10)
+    np.round(tenths, out=tenths)
+    fits = np.fmax.reduce(tenths) <= np.iinfo(np.int16).max and np.fmin.reduce(tenths) >= 0
+    if fits and np.count_nonzero(tenths / 10 != lengths) == unmeasured:
+        if unmeasured:
+            tenths[np.isnan(tenths)] = _NO_TENTHS
+        return _LENGTH | _LENGTH_TENTHS, tenths.astype("<i2").tobytes()
     return _LENGTH, _float_bytes(lengths)
 
 
-def _class_bytes(classes: ObjectArray) -> tuple[int, bytes, bytes]:
+def _class_bytes(detections: Detections) -> tuple[int, bytes, bytes]:
     """The class flags, codes and vocabulary: each detection's class as a code numbered in
-    order of first appearance, one dict lookup each (a batch has a handful of classes)."""
-    listed = classes.tolist()
-    # Counted only when the first reports none (a batch with classes mostly has one there).
-    if not listed or (listed[0] is None and listed.count(None) == len(listed)):
+    order of first appearance (`Detections.class_codes`: as the parser coded them, or one
+    dict lookup a row)."""
+    coded = detections.class_codes()
+    if len(coded.words) <= 1:  # no detection reports a class
         return 0, b"", b""
-    index: defaultdict[str | None, int] = defaultdict(count(1).__next__, {None: 0})
-    codes = np.fromiter(map(index.__getitem__, listed), np.uint32, len(listed))
-    vocabulary = orjson.dumps(list(index)[1:])
-    if len(index) <= 1 << 8:
-        return _CLASS, codes.astype(np.uint8).tobytes(), vocabulary
-    if len(index) <= 1 << 16:
-        return _CLASS | _CLASS_WIDE, codes.astype("<u2").tobytes(), vocabulary
-    return _CLASS | _CLASS_WIDER, codes.astype("<u4").tobytes(), vocabulary
+    vocabulary = orjson.dumps(coded.words[1:])
+    if len(coded.words) <= 1 << 8:
+        return _CLASS, coded.codes.astype(np.uint8).tobytes(), vocabulary
+    if len(coded.words) <= 1 << 16:
+        return _CLASS | _CLASS_WIDE, coded.codes.astype("<u2").tobytes(), vocabulary
+    return _CLASS | _CLASS_WIDER, coded.codes.astype("<u4").tobytes(), vocabulary
 
 
 @dataclass(frozen=True)
