@@ -22,7 +22,7 @@ featured queue, stop-and-go and bottleneck; joining fragments at the forward pas
 anchors weigh (`refine.fragment_ends`, the same session) the featured queue, stop-and-go and
 bottleneck.
 Centring each block's kinematic term on its own first chain where lengths pin the chains, and
-chaining each lane to the lane its vehicles reach (`anchors._recentred`,
+chaining each lane to the lane its vehicles reach (`first_chains.recentred`,
 `anchors.lane_destinations`, session 12) moved the featured queue, stop-and-go and bottleneck.
 When a change of the METHOD moves a grouping on purpose, print the new digests with
 `python -m tests.association.associators.assignment.test_pinned_groupings` and say why in the

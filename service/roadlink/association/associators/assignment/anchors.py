@@ -203,7 +203,7 @@ def _draw_segments(
         if drawn is not None and np.isfinite(drawn.smoothness[k])
     }
     # Each block's first chain, drawn loose once: where lengths pin the chains, it centres
-    # the kinematic term (`_recentred`), and it teaches the smoothness.
+    # the kinematic term (`recentred`), and it teaches the smoothness.
     loose = loose_chains(
         terms, [(k, i) for k in terms if tail[k] > 0 for i in range(len(terms[k]))], tail
     )
@@ -301,9 +301,9 @@ def _pair_terms(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Every pair's gain, its log travel time and its kinematic error (log travel time against
     the gap at the mean speed). The gain is the pair's length likelihood ratio (where both
-    lengths were measured) and its kinematic error's log density (`_kinematic_gain`); -inf
-    where faster than any vehicle or slower than `longest` (which keeps each row's chain to a
-    band of columns)."""
+    lengths were measured) and its kinematic error's log density
+    (`first_chains.kinematic_gain`); -inf where faster than any vehicle or slower than `longest`
+    (which keeps each row's chain to a band of columns)."""
     assert s.features is not None and model.features is not None
     gap = s.positions[k + 1] - s.positions[k]
     shortest = gap / (TOP_SPEED_MARGIN * max(s.top_speed[k], s.top_speed[k + 1]))

@@ -144,10 +144,10 @@ def recentred(
     true one however well its lengths match (SUMO's bottleneck, the merge's lane: 14 pairs in a
     row shifted by two vehicles, their travel times 46 s against 53 s, the kinematic 22 s).
     Centred on the block's own chain, the term still keeps a chain from drifting far, and the
-    lengths decide between neighbouring alignments. Only where lengths were measured at both
-    sensors: without them the term is what pins a chain, and centred on its own chain a chain
-    shifted by a vehicle would score as well as the true one (lanes alone on the SUMO
-    scenarios: -0.4 points, stop-and-go -3.5)."""
+    lengths decide between neighbouring alignments. `anchors` draws loose chains for this only
+    where lengths were measured at both sensors: without them the term is what pins a chain,
+    and centred on its own chain a chain shifted by a vehicle would score as well as the true
+    one (lanes alone on the SUMO scenarios: -0.4 points, stop-and-go -3.5)."""
     result = {k: list(blocks) for k, blocks in terms.items()}
     for (k, i), pairs in loose.items():
         if len(pairs) < CENTRE_MIN_PAIRS:
