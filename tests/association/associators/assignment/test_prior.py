@@ -11,7 +11,9 @@ from roadlink.association.associators.assignment import AssignmentParams
 from roadlink.association.associators.assignment.prior import (
     PRIOR_BINS,
     bin_counts,
+    few_targets_priors,
     segment_prior,
+    travel_time_prior,
 )
 from roadlink.association.associators.assignment.sensors import KINEMATIC_SKEW, arrange
 from roadlink.association.detections import Detections
@@ -99,3 +101,32 @@ def test_bins_count_as_numpy_does_and_ignore_values_out_of_range():
     outside = np.array([PRIOR_BINS[0] - 1.0, PRIOR_BINS[-1] + 1.0])
     assert bin_counts(outside).sum() == 0
     assert bin_counts(np.array([PRIOR_BINS[-1]]))[-1] == 1  # the last bin is closed
+
+
+@pytest.mark.parametrize("n", [3, 10, 25, 39])
+def test_segments_of_a_handful_of_targets_at_once_give_each_its_own_prior(n):
+    # `few_targets_priors` works out the small samples' modes all at once, a copy of
+    # `travel_time_prior`'s path for fewer than PRIOR_TEST_SAMPLE detections: the same numbers,
+    # segment by segment, whatever the sample (some slowed, some not, one sensor empty).
+    rng = np.random.default_rng(n)
+    noise = [  # unrelated arrivals: a mode by chance, moved by any difference in the counting
+        Detections.from_columns(
+            np.repeat([0.0, 150.0, 400.0], n),
+            rng.uniform(5.0, 30.0, 3 * n),
+            rng.uniform(0.0, 60.0, 3 * n),
+        )
+        for _ in range(5)
+    ]
+    for seed, d in enumerate([slow_zone(seed, n) for seed in range(5)] + noise):
+        s = arrange(d, PARAMS)
+        sensors = np.arange(s.positions.size - 1)
+        samples = [s.members(p)[:: 1 + seed % 2] for p in sensors]
+        samples[-1] = samples[-1][:0] if seed in (4, 9) else samples[-1]
+        together = few_targets_priors(s, samples, sensors + 1)
+        one_by_one = [
+            travel_time_prior(s, sample, p + 1) if sample.size else 0.0
+            for p, sample in zip(sensors.tolist(), samples, strict=True)
+        ]
+        np.testing.assert_array_equal(together, one_by_one)
+        if n >= 10 and seed < 5:  # the slow zone's segment shows in both
+            assert together[0] > 0.2
