@@ -7,8 +7,9 @@ import dataclasses
 
 import numpy as np
 
-from roadlink.association.associators.assignment import first_chains
+from roadlink.association.associators.assignment import anchors, first_chains
 from roadlink.association.associators.assignment.anchors import lane_order_anchors
+from roadlink.association.associators.assignment.chains import SKIP
 from roadlink.association.associators.assignment.first_chains import (
     LOOSE_SMOOTHNESS,
     SMOOTHNESS_BOUNDS,
@@ -62,7 +63,11 @@ def test_where_vehicles_pass_the_sensors_faster_than_they_cross_centred_chains_h
     # The lane queue's vehicles (two lanes, lengths with a 7 % error, no lane changes) read at
     # twice the speed their travel times say: each lane's chain, centred on none, slips towards
     # shorter travel times. As measured over seeds 0-2: 71 % of the anchors right, 52 % with the
-    # term centred on none.
+    # term centred on none. Skips cost one fixed SKIP here, as the prior's lane changes (half
+    # the vehicles keep their lane) would have it: costed by the lane changes learned from the
+    # true tracks (none), the chains hold with or without centring (94 and 96 %).
+    monkeypatch.setattr(anchors, "skip_costs", lambda *args: (SKIP, SKIP))
+
     def right(centre_min_pairs: int) -> float:
         shares = []
         for seed in range(3):

@@ -24,6 +24,8 @@ bottleneck.
 Centring each block's kinematic term on its own first chain where lengths pin the chains, and
 chaining each lane to the lane its vehicles reach (`first_chains.recentred`,
 `anchors.lane_destinations`, session 12) moved the featured queue, stop-and-go and bottleneck.
+Costing a skip in a lane's chain by the segment's learned lane changes (`anchors.skip_costs`,
+session 13) moved the featured bottleneck, queue, stop-and-go and dense traffic.
 When a change of the METHOD moves a grouping on purpose, print the new digests with
 `python -m tests.association.associators.assignment.test_pinned_groupings` and say why in the
 commit.
@@ -50,11 +52,11 @@ PINNED: dict[tuple[str, tuple[tuple[str, float], ...]], str] = {
     ("sumo/sumo-irregular", ()): "fdf5a26e3eca1905",
     ("sumo/sumo-queue", ()): "b7aee117398033f8",
     ("sumo/sumo-stopgo", ()): "cbc086459429b8f4",
-    ("sumo-features/sumo-bottleneck", ()): "68e7127141c055e6",
-    ("sumo-features/sumo-dense-speed6", ()): "4a80a88cc0d8a09e",
+    ("sumo-features/sumo-bottleneck", ()): "615934d92871137c",
+    ("sumo-features/sumo-dense-speed6", ()): "6116fe445fa86301",
     ("sumo-features/sumo-freeflow", ()): "2dc3133c2c5d6eae",
-    ("sumo-features/sumo-queue", ()): "e24c24404a696bb5",
-    ("sumo-features/sumo-stopgo", ()): "aa72dc2d583317dc",
+    ("sumo-features/sumo-queue", ()): "5b479c02abba1666",
+    ("sumo-features/sumo-stopgo", ()): "8fc16d182657f089",
     ("presets/congested-seed0-faults", ()): "da96b33cdba08c71",
     ("presets/large-seed1", ()): "377c5807b2719eac",
     ("presets/small-seed2-faults", ()): "e5e850590ebb7773",

@@ -33,7 +33,8 @@ STEP_RANGE = 0.5
 STEP_TAIL = 0.2
 STEP_TAIL_WIDTH = 4.0
 # A chain's next pair lies at most BAND rows and columns on; each detection skipped between two
-# pairs (a lane changer, about one in five in a queue) costs SKIP.
+# pairs (a lane changer, about one in five in a queue) costs SKIP, unless the problem says what a
+# skipped row and a skipped column cost (`anchors.skip_costs`, from the lanes' learned changes).
 BAND = 4
 SKIP = 1.5
 # A chain may start afresh after any earlier pair at JUMP: no tie in travel time to the pair
@@ -45,13 +46,16 @@ JUMP = 6.0
 class ChainProblem:
     """One chain to draw: each pair's gain (-inf: impossible), log travel time and kinematic
     error (rows upstream, columns downstream, both in time order), followers' spread of the
-    change of log travel time, and the share of it that is wider (`step_score`)."""
+    change of log travel time, the share of it that is wider (`step_score`), and what each row
+    and each column skipped between two pairs costs."""
 
     gain: FloatArray
     log_travel: FloatArray
     kinematic: FloatArray
     smoothness: float
     tail: float = STEP_TAIL
+    skip_row: float = SKIP
+    skip_column: float = SKIP
 
     def reversed(self) -> ChainProblem:
         """The same pairs read from the last row and column back."""
@@ -61,6 +65,8 @@ class ChainProblem:
             self.kinematic[::-1, ::-1],
             self.smoothness,
             self.tail,
+            self.skip_row,
+            self.skip_column,
         )
 
 
@@ -306,7 +312,8 @@ def _best_step(
     )
     step = score[before] + steps.score(change, owner)
     # Rows and columns skipped between the two pairs.
-    step -= SKIP * (np.arange(rows.size)[:, None, None] + shifts[None, :, None] - 1)
+    step -= steps.skip_row[owner] * np.arange(rows.size)[:, None, None]
+    step -= steps.skip_column[owner] * (shifts - 1)[None, :, None]
     step = np.where(np.isfinite(step), step, -np.inf)
     candidates = step.transpose(1, 0, 2).reshape(-1, owner.size)  # shift-major
     first_best = np.argmax(candidates, axis=0)
@@ -323,6 +330,8 @@ class _StepScores:
     log_core: FloatArray  # log(1 - tail)
     log_wide: FloatArray  # log(tail / STEP_TAIL_WIDTH); -inf without a tail
     even: FloatArray
+    skip_row: FloatArray
+    skip_column: FloatArray
 
     @classmethod
     def of(cls, problems: Sequence[ChainProblem]) -> _StepScores:
@@ -332,6 +341,8 @@ class _StepScores:
                 np.array([np.log1p(-p.tail) for p in problems], dtype=np.float64),
                 np.array([np.log(p.tail / STEP_TAIL_WIDTH) for p in problems], dtype=np.float64),
                 np.array([_even(p.smoothness) for p in problems], dtype=np.float64),
+                np.array([p.skip_row for p in problems], dtype=np.float64),
+                np.array([p.skip_column for p in problems], dtype=np.float64),
             )
 
     def score(self, change: FloatArray, owner: IntArray) -> FloatArray:
