@@ -25,7 +25,8 @@ Centring each block's kinematic term on its own first chain where lengths pin th
 chaining each lane to the lane its vehicles reach (`first_chains.recentred`,
 `anchors.lane_destinations`, session 12) moved the featured queue, stop-and-go and bottleneck.
 Costing a skip in a lane's chain by the segment's learned lane changes (`anchors.skip_costs`,
-session 13) moved the featured bottleneck, queue, stop-and-go and dense traffic.
+session 13) moved the featured bottleneck, queue, stop-and-go and dense traffic, and the same
+costs in the loose first chains (`first_chains.loose_chains`) the featured queue.
 When a change of the METHOD moves a grouping on purpose, print the new digests with
 `python -m tests.association.associators.assignment.test_pinned_groupings` and say why in the
 commit.
@@ -55,7 +56,7 @@ PINNED: dict[tuple[str, tuple[tuple[str, float], ...]], str] = {
     ("sumo-features/sumo-bottleneck", ()): "615934d92871137c",
     ("sumo-features/sumo-dense-speed6", ()): "6116fe445fa86301",
     ("sumo-features/sumo-freeflow", ()): "2dc3133c2c5d6eae",
-    ("sumo-features/sumo-queue", ()): "5b479c02abba1666",
+    ("sumo-features/sumo-queue", ()): "62d76cb477f573c3",
     ("sumo-features/sumo-stopgo", ()): "8fc16d182657f089",
     ("presets/congested-seed0-faults", ()): "da96b33cdba08c71",
     ("presets/large-seed1", ()): "377c5807b2719eac",

@@ -239,7 +239,7 @@ def _draw_segments(
     # Each block's first chain, drawn loose once: where lengths pin the chains, it centres
     # the kinematic term (`recentred`), and it teaches the smoothness.
     loose = loose_chains(
-        terms, [(k, i) for k in terms if tail[k] > 0 for i in range(len(terms[k]))], tail
+        terms, [(k, i) for k in terms if tail[k] > 0 for i in range(len(terms[k]))], tail, skips
     )
     unlearned = {k: [t[:3] for t in terms[k]] for k in terms if k not in lent}
     smoothness = lent | learned_smoothnesses(unlearned, tail, loose)

@@ -17,6 +17,7 @@ import numpy as np
 
 from roadlink.association.associators.assignment.chains import (
     BAND,
+    SKIP,
     STEP_TAIL,
     ChainProblem,
     smooth_chains,
@@ -114,10 +115,22 @@ def loose_chains(
     terms: Terms,
     keys: list[tuple[int, int]],
     tail: dict[int, float],
+    skips: dict[int, list[tuple[float, float]]] | None = None,
 ) -> dict[tuple[int, int], list[tuple[int, int]]]:
-    """The chains of the blocks `keys` (segment, block) drawn at LOOSE_SMOOTHNESS, in runs."""
+    """The chains of the blocks `keys` (segment, block) drawn at LOOSE_SMOOTHNESS, in runs,
+    each skip costed as its block's chain will cost it (`skips`, by segment and block: what
+    `anchors.skip_costs` says; SKIP without them): the loose chain centres the kinematic term
+    the chain is drawn with, so it should slip where that chain would, no more."""
     problems = [
-        (key, ChainProblem(*terms[key[0]][key[1]][:3], LOOSE_SMOOTHNESS, tail[key[0]]))
+        (
+            key,
+            ChainProblem(
+                *terms[key[0]][key[1]][:3],
+                LOOSE_SMOOTHNESS,
+                tail[key[0]],
+                *(skips[key[0]][key[1]] if skips else (SKIP, SKIP)),
+            ),
+        )
         for key in keys
     ]
     loose: dict[tuple[int, int], list[tuple[int, int]]] = {}
