@@ -4,13 +4,19 @@ chain of detections read both ways."""
 import numpy as np
 
 from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR
+from roadlink.association.associators.assignment.prior import segment_prior
+from roadlink.association.associators.assignment.refine import refine_boundaries
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.associators.assignment.tracks import (
+    SweepSetup,
+    build_tracks,
     duplicate_followers,
     successors,
     tracks_from_links,
 )
 from roadlink.association.detections import Detections
+from roadlink.simulation import preset, simulate
 
 
 def three_sensors() -> Detections:
@@ -52,3 +58,26 @@ def test_tracks_from_links_number_the_chains_and_leave_the_rest_out():
     # Read back, the links are what they were built from.
     nxt, back = successors(s, tracks_from_links(s, prv, np.ones(6, dtype=bool)))
     assert back.tolist() == prv.tolist() and nxt.tolist() == [2, 3, 4, 5, -1, -1]
+
+
+def test_a_pass_that_works_out_the_sweeps_gating_builds_the_same_tracks_and_hands_it_over():
+    # A paper-size batch (every sensor's links gated at once): the pass takes its gating and
+    # edges from the sweep's, at its narrower gate, and the sweep finds them ready for this
+    # model alone; tracks, re-paired tracks and confidences are those worked out apart.
+    params = AssignmentParams()
+    s = arrange(simulate(preset("large"), seed=1).detections, params)
+    model = segment_prior(s, params.max_skip + 1, params)
+    leader = duplicate_followers(s, params)
+    setup = SweepSetup()
+    plain = build_tracks(s, model, params, leader, None, 0.0, 1.0)
+    shared = build_tracks(s, model, params, leader, None, 0.0, 1.0, sweep=setup)
+    assert np.array_equal(plain, shared) and (plain >= 0).sum() > 50
+    wide = REFINE_GATE_FACTOR * params.gate_cost
+    ready = setup.of(model, wide)
+    assert ready is not None and ready[0].every is not None
+    assert setup.of(model.copy(), wide) is None and setup.of(model, params.gate_cost) is None
+    confidence = [np.full(s.time.size, np.nan) for _ in range(2)]
+    apart = refine_boundaries(s, model, params, plain.copy(), confidence[0])
+    together = refine_boundaries(s, model, params, plain.copy(), confidence[1], setup=setup)
+    assert np.array_equal(apart[0], together[0]) and apart[1] == together[1]
+    assert np.array_equal(confidence[0], confidence[1], equal_nan=True)

@@ -118,10 +118,13 @@ def _match_dense(
     left may take a real right along an edge or its own dummy (cost `alone`); dummies pair freely
     at no cost, which always leaves exactly as many free dummy rows as free dummy columns.
     """
-    square = np.full((n_l + n_r, n_r + n_l), np.inf)
+    size = n_l + n_r
+    square = np.full((size, size), np.inf)
     square[li, ri] = cost
-    square[np.arange(n_l), n_r + np.arange(n_l)] = alone
-    square[n_l + np.arange(n_r), np.arange(n_r)] = alone
+    # The dummies' diagonals, (l, n_r + l) and (n_l + r, r), as strided runs of the flat square.
+    flat = square.reshape(-1)
+    flat[n_r : n_r + n_l * (size + 1) : size + 1] = alone
+    flat[n_l * size : n_l * size + n_r * (size + 1) : size + 1] = alone
     square[n_l:, n_r:] = 0.0
     from scipy.optimize import linear_sum_assignment  # on first use, as in `match`
 

@@ -22,6 +22,7 @@ from roadlink.association.associators.assignment.params import (
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.associators.assignment.tracks import (
     BoolArray,
+    SweepSetup,
     level_terms,
     successors,
     tracks_from_links,
@@ -38,6 +39,7 @@ def refine_boundaries(
     relink: bool = True,
     anchor: Anchors | None = None,
     tentative: bool = False,
+    setup: SweepSetup | None = None,
 ) -> tuple[IntArray, bool]:
     """Re-pair the tracks across every sensor boundary, seeing both sides whole: the tracks,
     and whether any boundary changed a link.
@@ -56,14 +58,19 @@ def refine_boundaries(
     A `tentative` judging stops at the first boundary that changes a link. A sweep depends on
     the tracks' links alone, so one that changes none leaves the next sweep the same work, and
     its judging is the next sweep's. Links that lane order `anchor`s cost their bonus less, as
-    in the forward pass.
+    in the forward pass. The gating and window edges come from `setup` where a forward pass
+    worked them out with this model (`tracks.SweepSetup`).
     """
     nxt, prv = successors(s, track)
     in_track = track >= 0
     n_sensors = s.positions.size
     levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
-    gate = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
-    edges = WindowEdges.of(s, model, gate.gate / 2.0)
+    ready = None if setup is None else setup.of(model, REFINE_GATE_FACTOR * params.gate_cost)
+    if ready is None:
+        gate = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
+        edges = WindowEdges.of(s, model, gate.gate / 2.0)
+    else:
+        gate, edges = ready
     changed = False
     judged: list[Judged] = []
     for k in range(1, n_sensors + 1):

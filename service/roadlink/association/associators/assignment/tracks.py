@@ -15,7 +15,10 @@ from roadlink.association.associators.assignment.gating import Gate
 from roadlink.association.associators.assignment.matching import match
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import Neighbour, PaceModel
-from roadlink.association.associators.assignment.params import AssignmentParams
+from roadlink.association.associators.assignment.params import (
+    REFINE_GATE_FACTOR,
+    AssignmentParams,
+)
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.associators.base import Progress
 from roadlink.association.detections import FloatArray, IntArray
@@ -120,6 +123,24 @@ def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
     return leader
 
 
+@dataclass
+class SweepSetup:
+    """The re-pairing sweep's gating and window edges, worked out by a forward pass with the
+    `model` the sweep may use (`associator.link_and_learn`): the pass's own are the same at a
+    narrower gate, so they are taken from the sweep's (`Gate.narrowed`, `WindowEdges.each`),
+    and on a paper-size batch the pass before the sweep is usually the last."""
+
+    model: SegmentModel | None = None
+    gate: Gate | None = None
+    edges: WindowEdges | None = None
+
+    def of(self, model: SegmentModel, gate: float) -> tuple[Gate, WindowEdges] | None:
+        """The sweep's gating and edges for this `model` at this `gate`, if worked out."""
+        if self.model is not model or self.gate is None or self.edges is None:
+            return None
+        return (self.gate, self.edges) if self.gate.gate == gate else None
+
+
 def build_tracks(
     s: Sensors,
     model: SegmentModel,
@@ -129,15 +150,23 @@ def build_tracks(
     done: float,
     share: float,
     anchor: Anchors | None = None,
+    sweep: SweepSetup | None = None,
 ) -> IntArray:
     """One sequential pass over the sensors: the track index of every detection (-1 = none).
-    Links that lane order `anchor`s (`anchors.py`) cost their bonus less."""
+    Links that lane order `anchor`s (`anchors.py`) cost their bonus less. With `sweep`, the
+    re-pairing sweep's gating and edges with this model are worked out too, and kept there."""
     n_sensors = s.positions.size
     track = np.full(s.time.size, -1, dtype=np.int64)
     level = TrackLevel.start(s, model.pace)
     tail = np.zeros(0, dtype=np.int64)  # last detection of every track, by track index
-    gate = Gate.of(s, model, params, params.gate_cost)
-    edges = WindowEdges.of(s, model, params.gate_cost / 2.0)
+    if sweep is None:
+        gate = Gate.of(s, model, params, params.gate_cost)
+        edges = WindowEdges.of(s, model, params.gate_cost / 2.0)
+    else:
+        wide = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
+        gate = wide.narrowed(params.gate_cost)
+        edges, wide_edges = WindowEdges.each(s, model, (params.gate_cost / 2.0, wide.gate / 2.0))
+        sweep.model, sweep.gate, sweep.edges = model, wide, wide_edges
     copies = leader if (leader >= 0).any() else None
     for q in range(n_sensors):
         linked_b = np.zeros(0, dtype=np.int64)
