@@ -43,6 +43,18 @@ class Pairs:
             None if self.own is None else self.own[keep],
         )
 
+    def part(self, lo: int, hi: int) -> Pairs:
+        """Pairs lo to hi (views)."""
+        return Pairs(
+            self.a[lo:hi],
+            self.b[lo:hi],
+            self.r_time[lo:hi],
+            self.ratio[lo:hi],
+            self.speed_spread[lo:hi],
+            self.span[lo:hi],
+            None if self.own is None else self.own[lo:hi],
+        )
+
     @classmethod
     def concatenate(cls, parts: list[Pairs]) -> Pairs:
         own = [p.own for p in parts if p.own is not None]
