@@ -2,8 +2,10 @@
 chain of detections read both ways."""
 
 import numpy as np
+import pytest
 
 from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.learning import learn_segments
 from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import refine_boundaries
@@ -81,3 +83,31 @@ def test_a_pass_that_works_out_the_sweeps_gating_builds_the_same_tracks_and_hand
     together = refine_boundaries(s, model, params, plain.copy(), confidence[1], setup=setup)
     assert np.array_equal(apart[0], together[0]) and apart[1] == together[1]
     assert np.array_equal(confidence[0], confidence[1], equal_nan=True)
+
+
+FAULTS = {"miss_probability": 0.1, "false_alarm_rate": 0.02, "duplicate_probability": 0.05}
+FEATURES = {"lanes": 3, "vehicle_lengths": True, "length_noise": 0.05, "velocity_noise": 0.03}
+
+
+@pytest.mark.parametrize("traffic", [{}, FAULTS, FEATURES])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_pass_that_foresees_tracks_builds_what_it_builds_without(
+    traffic: dict[str, object], seed: int
+) -> None:
+    # Paper-size batches, the second round's pass: foreseeing the first round's tracks, its
+    # own, or its own cut at one sensor (the pass goes on sensor by sensor from there, or from
+    # the start), it builds the tracks it builds alone.
+    params = AssignmentParams()
+    s = arrange(simulate(preset("medium", **traffic), seed=seed).detections, params)
+    prior = segment_prior(s, params.max_skip + 1, params)
+    leader = duplicate_followers(s, params)
+    first = build_tracks(s, prior, params, leader, None, 0.0, 1.0)
+    model = learn_segments(s, first, params, prior)
+    plain = build_tracks(s, model, params, leader, None, 0.0, 1.0)
+    cut = plain.copy()
+    for sensor in (1, s.positions.size // 2, s.positions.size - 1):
+        late = (s.sensor >= sensor) & (cut == cut[s.members(sensor)[0]])
+        cut[late] = cut.max() + 1
+    for expected in (first, plain, cut, np.full_like(plain, -1)):
+        foreseeing = build_tracks(s, model, params, leader, None, 0.0, 1.0, expected=expected)
+        assert np.array_equal(foreseeing, plain)

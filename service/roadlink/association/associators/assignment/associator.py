@@ -114,6 +114,7 @@ def link_and_learn(
             1.0 / passes.total,
             anchor,
             sweep if final and params.refine_sweeps > 0 else None,
+            learned_from,
         )
         if learned_from is not None and np.array_equal(track, learned_from):
             if passes.progress:

@@ -11,7 +11,7 @@ import numpy.typing as npt
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.edges import WindowEdges
-from roadlink.association.associators.assignment.gating import Gate
+from roadlink.association.associators.assignment.gating import EverySensor, Gate, Pairs
 from roadlink.association.associators.assignment.matching import match
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import Neighbour, PaceModel
@@ -151,10 +151,13 @@ def build_tracks(
     share: float,
     anchor: Anchors | None = None,
     sweep: SweepSetup | None = None,
+    expected: IntArray | None = None,
 ) -> IntArray:
     """One sequential pass over the sensors: the track index of every detection (-1 = none).
     Links that lane order `anchor`s (`anchors.py`) cost their bonus less. With `sweep`, the
-    re-pairing sweep's gating and edges with this model are worked out too, and kept there."""
+    re-pairing sweep's gating and edges with this model are worked out too, and kept there.
+    With `expected` tracks (the round before's), the candidates and costs of every sensor are
+    worked out at once as if the pass built those (`Foreseen`), as long as it does."""
     n_sensors = s.positions.size
     track = np.full(s.time.size, -1, dtype=np.int64)
     level = TrackLevel.start(s, model.pace)
@@ -168,16 +171,91 @@ def build_tracks(
         edges, wide_edges = WindowEdges.each(s, model, (params.gate_cost / 2.0, wide.gate / 2.0))
         sweep.model, sweep.gate, sweep.edges = model, wide, wide_edges
     copies = leader if (leader >= 0).any() else None
+    foreseen = None
+    if expected is not None and gate.every is not None:
+        foreseen = Foreseen.of(s, model, params, gate.every, edges, anchor, expected)
+    made: list[tuple[IntArray, IntArray]] = []  # the links made, while foreseen
     for q in range(n_sensors):
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
-            linked_b = _extend_tracks(s, model, params, gate, edges, q, track, tail, level, anchor)
+            if foreseen is None:
+                linked_b = _extend_tracks(
+                    s, model, params, gate, edges, q, track, tail, level, anchor
+                )
+            else:
+                pairs, cost = foreseen.at(q)
+                linked_a, linked_b = match(pairs.a, pairs.b, cost, params.gate_cost)
+                track[linked_b] = track[linked_a]
+                tail[track[linked_b]] = linked_b
+                made.append((linked_a, linked_b))
         born = _births(s.members(q), linked_b, track, copies)
         track[born] = tail.size + np.arange(born.size)
         tail = np.concatenate([tail, born])
+        if foreseen is not None and not np.array_equal(
+            track[s.members(q)], foreseen.expected[s.members(q)]
+        ):
+            # Not the tracks foreseen: on from here sensor by sensor, with the levels of the
+            # tracks made so far.
+            foreseen = None
+            for a, b in made:
+                level.extend(s, a, b, model.pace)
         if progress:
             progress(done + share * (q + 1) / n_sensors)
     return track
+
+
+@dataclass(frozen=True)
+class Foreseen:
+    """A forward pass's candidate links into every sensor and their costs, worked out at once as
+    if the pass built the `expected` tracks: on a paper-size batch the second round builds the
+    first round's tracks, and numpy's fixed costs of each sensor's gating and costs, some fifty
+    calls, were most of a pass. As long as the pass has built those tracks, sensor q sees
+    those tracks' ends before it (its open tails, by track index, `_extend_tracks`) and their
+    levels, so its candidates and their costs are these, each candidate's numbers its own
+    (`build_tracks` checks the tracks sensor by sensor, and goes on without these at the first
+    that differs)."""
+
+    expected: IntArray
+    pairs: Pairs
+    cost: FloatArray
+    bounds: list[int]  # sensor q's candidates are pairs[bounds[q]:bounds[q + 1]]
+
+    @classmethod
+    def of(
+        cls,
+        s: Sensors,
+        model: SegmentModel,
+        params: AssignmentParams,
+        every: EverySensor,
+        edges: WindowEdges,
+        anchor: Anchors | None,
+        expected: IntArray,
+    ) -> Foreseen:
+        nxt, prv = successors(s, expected)
+        gated = every.pairs
+        a, b = gated.a, gated.b
+        q = s.sensor[b]
+        # The open tails before sensor q: a track's last detection before it, within reach
+        # (every gated link is); by track index, as `EverySensor.into` orders them.
+        keep = (expected[a] >= 0) & ((nxt[a] < 0) | (s.sensor[np.maximum(nxt[a], 0)] >= q))
+        kept = np.flatnonzero(keep)
+        key = q[kept] * (int(expected.max(initial=0)) + 1) + expected[a[kept]]
+        pairs = gated.take(kept[np.argsort(key, kind="stable")])
+        level = TrackLevel.start(s, model.pace)
+        for sensor in range(1, s.positions.size):
+            m = s.members(sensor)
+            m = m[prv[m] >= 0]
+            level.extend(s, prv[m], m, model.pace)
+        cost = link_cost(params, model, pairs, level.of(pairs.a), detection_level(s, pairs.b), s)
+        cost -= anchor_bonus(pairs, anchor)
+        cost += edges.cost(pairs)
+        bounds = np.searchsorted(s.sensor[pairs.b], np.arange(s.positions.size + 1))
+        return cls(expected, pairs, cost, bounds.tolist())
+
+    def at(self, q: int) -> tuple[Pairs, FloatArray]:
+        """Sensor q's candidates and their costs."""
+        lo, hi = self.bounds[q], self.bounds[q + 1]
+        return self.pairs.part(lo, hi), self.cost[lo:hi]
 
 
 def _extend_tracks(
