@@ -111,3 +111,25 @@ def test_a_pass_that_foresees_tracks_builds_what_it_builds_without(
     for expected in (first, plain, cut, np.full_like(plain, -1)):
         foreseeing = build_tracks(s, model, params, leader, None, 0.0, 1.0, expected=expected)
         assert np.array_equal(foreseeing, plain)
+
+
+@pytest.mark.parametrize("window", [0.5, 5.0, 60.0])
+def test_the_reports_each_may_duplicate_are_each_sensors_own_lag_by_lag(window: float) -> None:
+    # Every sensor's reports at once, lag after lag: the leaders found sensor by sensor.
+    params = AssignmentParams(duplicate_window=window, duplicate_velocity_tolerance=0.3)
+    d = simulate(preset("medium", duplicate_probability=0.3, false_alarm_rate=0.1), seed=3)
+    s = arrange(d.detections, params)
+    leader = np.full(s.time.size, -1, dtype=np.int64)
+    tolerance = np.log1p(params.duplicate_velocity_tolerance)
+    for k in range(s.positions.size):
+        m = s.members(k)
+        for lag in range(1, m.size):
+            later, earlier = m[lag:], m[:-lag]
+            close = s.time[later] - s.time[earlier] <= params.duplicate_window
+            if not close.any():
+                break
+            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
+            fresh = alike & (leader[later] < 0)
+            leader[later[fresh]] = earlier[fresh]
+    found = duplicate_followers(s, params)
+    assert (found >= 0).sum() > 3 and np.array_equal(found, leader)

@@ -110,16 +110,19 @@ def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
     if params.duplicate_window <= 0:
         return leader
     tolerance = np.log1p(params.duplicate_velocity_tolerance)
-    for k in range(s.positions.size):
-        m = s.members(k)
-        for lag in range(1, m.size):
-            later, earlier = m[lag:], m[:-lag]
-            close = s.time[later] - s.time[earlier] <= params.duplicate_window
-            if not close.any():
-                break
-            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
-            fresh = alike & (leader[later] < 0)
-            leader[later[fresh]] = earlier[fresh]
+    # Every sensor's reports at once, lag after lag (a sensor's times ascend, and are finite,
+    # so once no two reports `lag` apart are close, none further apart are): the nearest
+    # earlier report first.
+    m = s.order
+    for lag in range(1, m.size):
+        later, earlier = m[lag:], m[:-lag]
+        close = s.time[later] - s.time[earlier] <= params.duplicate_window
+        close &= s.sensor[later] == s.sensor[earlier]
+        if not close.any():
+            break
+        alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
+        fresh = alike & (leader[later] < 0)
+        leader[later[fresh]] = earlier[fresh]
     return leader
 
 
