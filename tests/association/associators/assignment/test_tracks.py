@@ -114,10 +114,14 @@ def test_a_pass_that_foresees_tracks_builds_what_it_builds_without(
 
 
 @pytest.mark.parametrize("window", [0.5, 5.0, 60.0])
-def test_the_reports_each_may_duplicate_are_each_sensors_own_lag_by_lag(window: float) -> None:
-    # Every sensor's reports at once, lag after lag: the leaders found sensor by sensor.
+@pytest.mark.parametrize("name", ["medium", "congested"])
+def test_the_reports_each_may_duplicate_are_each_sensors_own_lag_by_lag(
+    window: float, name: str
+) -> None:
+    # Every sensor's reports at once, lag after lag (few reports a sensor), or sensor by sensor
+    # (the congested preset's many): the leaders found sensor by sensor.
     params = AssignmentParams(duplicate_window=window, duplicate_velocity_tolerance=0.3)
-    d = simulate(preset("medium", duplicate_probability=0.3, false_alarm_rate=0.1), seed=3)
+    d = simulate(preset(name, duplicate_probability=0.3, false_alarm_rate=0.1), seed=3)
     s = arrange(d.detections, params)
     leader = np.full(s.time.size, -1, dtype=np.int64)
     tolerance = np.log1p(params.duplicate_velocity_tolerance)

@@ -11,7 +11,12 @@ import numpy.typing as npt
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.edges import WindowEdges
-from roadlink.association.associators.assignment.gating import EverySensor, Gate, Pairs
+from roadlink.association.associators.assignment.gating import (
+    GATE_AT_ONCE,
+    EverySensor,
+    Gate,
+    Pairs,
+)
 from roadlink.association.associators.assignment.matching import match
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import Neighbour, PaceModel
@@ -110,19 +115,23 @@ def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
     if params.duplicate_window <= 0:
         return leader
     tolerance = np.log1p(params.duplicate_velocity_tolerance)
-    # Every sensor's reports at once, lag after lag (a sensor's times ascend, and are finite,
-    # so once no two reports `lag` apart are close, none further apart are): the nearest
-    # earlier report first.
-    m = s.order
-    for lag in range(1, m.size):
-        later, earlier = m[lag:], m[:-lag]
-        close = s.time[later] - s.time[earlier] <= params.duplicate_window
-        close &= s.sensor[later] == s.sensor[earlier]
-        if not close.any():
-            break
-        alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
-        fresh = alike & (leader[later] < 0)
-        leader[later[fresh]] = earlier[fresh]
+    # With few reports a sensor (a paper-size batch), every sensor's at once, lag after lag (a
+    # sensor's times ascend, and are finite, so once no two reports `lag` apart are close, none
+    # further apart are); else sensor by sensor, so that one sensor's crowd of close reports
+    # costs no pass over the others'. The nearest earlier report first.
+    at_once = n <= GATE_AT_ONCE * s.positions.size
+    runs = [s.order] if at_once else [s.members(k) for k in range(s.positions.size)]
+    for m in runs:
+        for lag in range(1, m.size):
+            later, earlier = m[lag:], m[:-lag]
+            close = s.time[later] - s.time[earlier] <= params.duplicate_window
+            if at_once:
+                close &= s.sensor[later] == s.sensor[earlier]
+            if not close.any():
+                break
+            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
+            fresh = alike & (leader[later] < 0)
+            leader[later[fresh]] = earlier[fresh]
     return leader
 
 
