@@ -1,16 +1,12 @@
 """The detections arranged by sensor (`assignment/sensors.py`), and the kinematic travel time."""
 
-import itertools
-
 import numpy as np
 import pytest
 
 from roadlink.association.associators.assignment import AssignmentParams
-from roadlink.association.associators.assignment.robust import median
 from roadlink.association.associators.assignment.sensors import (
     KINEMATIC_SKEW,
     arrange,
-    sensor_medians,
     travel_time,
 )
 from roadlink.association.detections import Detections
@@ -107,18 +103,3 @@ def test_arrival_keys_sort_as_sensor_then_time_and_none_with_a_nan_time():
     s = arrange(d, AssignmentParams())
     s.sorted_time[0] = np.nan
     assert s.arrival_keys is None
-
-
-@pytest.mark.parametrize("longest", [5, 64, 65])
-def test_each_sensors_median_at_once_is_its_own(longest: int):
-    # From one sort, and sensor by sensor where one has more than SHORT_ARRAY values or a
-    # median is zero: the same numbers as `median` of each.
-    rng = np.random.default_rng(11)
-    sizes = np.array([1, 2, 3, longest, 4])
-    values = rng.normal(size=sizes.sum())
-    start = np.concatenate([[0], np.cumsum(sizes)])
-    expected = [median(values[lo:hi]) for lo, hi in itertools.pairwise(start.tolist())]
-    assert sensor_medians(values, start).tolist() == expected
-    values[start[1] : start[2]] = [-1.0, 1.0]  # a median of zero
-    expected[1] = 0.0
-    assert sensor_medians(values, start).tolist() == expected

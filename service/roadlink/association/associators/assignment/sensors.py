@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -11,7 +10,7 @@ import numpy.typing as npt
 
 from roadlink.association.associators.assignment.features import SensorFeatures
 from roadlink.association.associators.assignment.params import AssignmentParams
-from roadlink.association.associators.assignment.robust import median, run_medians
+from roadlink.association.associators.assignment.robust import median
 from roadlink.association.detections import Detections, FloatArray, IntArray
 
 ComplexArray = npt.NDArray[np.complex128]
@@ -126,7 +125,9 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     floor = params.velocity_floor * float(median(detections.velocity))
     speed = np.maximum(detections.velocity, floor)
     log_speed = np.log(speed)
-    typical = sensor_medians(log_speed[order], start)
+    typical = np.array(
+        [median(log_speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]
+    )
     return Sensors(
         positions,
         order,
@@ -140,16 +141,6 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         1.0 / speed[order],
         log_speed[order],
         np.maximum.reduceat(speed[order], start[:-1]) if order.size else np.zeros(0),
-        sensor_medians(speed[order], start),
+        np.array([median(speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]),
         SensorFeatures.of(detections),
     )
-
-
-def sensor_medians(values: FloatArray, start: IntArray) -> FloatArray:
-    """The `median` of each sensor's values (`values` in `order`, sensor k's from start[k]):
-    from one sort where the sensors have few (`robust.run_medians`), else sensor by sensor."""
-    sizes = np.diff(start)
-    at_once = run_medians(values, sizes) if sizes.size and sizes.min() > 0 else None
-    if at_once is not None:
-        return at_once
-    return np.array([median(values[lo:hi]) for lo, hi in itertools.pairwise(start.tolist())])
