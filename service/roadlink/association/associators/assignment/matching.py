@@ -54,6 +54,12 @@ def unique_inverse(nodes: Nodes) -> tuple[Nodes, Nodes]:
     )
 
 
+def _distinct(nodes: Nodes) -> bool:
+    """Whether no node occurs twice (a handful of them)."""
+    ids = nodes.tolist()
+    return len(set(ids)) == len(ids)
+
+
 def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, Nodes]:
     """Minimum-cost one-to-one matching of the (left, right, cost) edges, every node free to stay
     unmatched at cost gate / 2 (so an edge is taken only if it beats leaving both ends alone).
@@ -68,15 +74,15 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     left, right, cost = left[keep], right[keep], cost[keep]
     if left.size == 0:
         return left, right
+    if 2 * left.size <= DENSE_NODES and _distinct(left) and _distinct(right):
+        # No two edges share a node, and each beats leaving its ends alone: all are taken (by
+        # left, as the dense assignment returns them; the lefts' ranks sort as the lefts).
+        by_left = np.argsort(left)
+        return left[by_left], right[by_left]
     lu, li = unique_inverse(left)
     ru, ri = unique_inverse(right)
     n_l, n_r = lu.size, ru.size
     if n_l + n_r <= DENSE_NODES:
-        if n_l == left.size and n_r == right.size:
-            # No two edges share a node, and each beats leaving its ends alone: all are taken
-            # (by left, as the dense assignment returns them).
-            by_left = np.argsort(li)
-            return left[by_left], right[by_left]
         ml, mr = _match_dense(li, ri, cost, gate / 2.0, n_l, n_r)
         return lu[ml], ru[mr]
     # Imported on first use (pipeline.DEFERRED_IMPORTS): every CLI command would pay for it.
