@@ -317,6 +317,24 @@ def _summed(
     return graph.indptr, graph.indices, graph.data
 
 
+# Node ids below this many times their number (or below COMPACT_IDS) index tables as they are.
+COMPACT_FACTOR = 16
+COMPACT_IDS = 4096
+
+
+def _compact(nodes: Nodes) -> Nodes:
+    """Small non-negative integers for the node ids, one to one: the ids themselves where they
+    are such (a judged sweep's boundaries' detections), else their ranks. `chosen_marginals`
+    only asks which edges share a node, which any such numbering tells alike."""
+    if (
+        nodes.size
+        and nodes.min() >= 0
+        and nodes.max() < max(COMPACT_FACTOR * nodes.size, COMPACT_IDS)
+    ):
+        return nodes
+    return unique_inverse(nodes)[1]
+
+
 def chosen_marginals(left: Nodes, right: Nodes, cost: Costs, chosen: Mask, gate: float) -> Costs:
     """For each chosen edge of a one-to-one matching (`chosen` marks them among the candidate
     edges left -> right), the approximate probability that it is in the matching, every node
@@ -330,8 +348,7 @@ def chosen_marginals(left: Nodes, right: Nodes, cost: Costs, chosen: Mask, gate:
     marginal = np.full(n, np.nan)
     if not chosen.any():
         return marginal
-    _, li = unique_inverse(left)
-    _, ri = unique_inverse(right)
+    li, ri = _compact(left), _compact(right)
     # Log likelihood of each edge against leaving both its ends alone.
     log_w = np.clip(-0.5 * (cost - gate), -LOG_ODDS_LIMIT, LOG_ODDS_LIMIT)
     edge_of_left = np.full(li.max() + 1, -1, dtype=np.int64)
