@@ -172,3 +172,24 @@ def test_without_re_pairing_the_links_are_judged_all_the_same() -> None:
     confidence, right = links_and_truth(result)
     assert np.all(np.isfinite(confidence))
     assert abs(confidence.mean() - right.mean()) < 0.05
+
+
+def test_marginals_depend_on_which_edges_share_a_node_not_on_the_ids() -> None:
+    # Ids indexed as they are (compact) and ids far apart (ranked first): the same numbers.
+    rng = np.random.default_rng(12)
+    for _ in range(20):
+        n = int(rng.integers(5, 60))
+        left, right = rng.integers(0, 30, n), rng.integers(0, 30, n)
+        pairs = np.unique(np.stack([left, right], axis=1), axis=0)
+        left, right = pairs[:, 0], pairs[:, 1]
+        cost = rng.uniform(0.0, 2.0 * GATE, left.size)
+        chosen = np.zeros(left.size, dtype=bool)
+        seen_l, seen_r = set(), set()
+        for e in rng.permutation(left.size).tolist():
+            if left[e] not in seen_l and right[e] not in seen_r and rng.random() < 0.6:
+                chosen[e] = True
+                seen_l.add(left[e])
+                seen_r.add(right[e])
+        compact = chosen_marginals(left, right, cost, chosen, GATE)
+        spread = chosen_marginals(left * 10**6 + 7, right * 10**5 + 3, cost, chosen, GATE)
+        assert np.array_equal(compact, spread, equal_nan=True)

@@ -107,3 +107,32 @@ def test_a_crawl_cut_by_the_window_is_linked_better() -> None:
     # once the sweeps joined fragments there at the forward pass's gate (`refine.fragment_ends`).
     metrics = associate(read_detections_csv(CREEP.read_text()), "assignment").metrics
     assert metrics is not None and metrics.accuracy >= 0.83
+
+
+def test_the_edges_at_several_caps_are_each_caps_own() -> None:
+    # A forward pass and the sweep after it share the working-out: only the cap differs.
+    d = read_detections_csv(CREEP.read_bytes()).without_labels()
+    s = arrange(d, PARAMS)
+    model = kinematic_model(s.positions.size, PARAMS)
+    caps = (UNMATCHED, 2.0 * UNMATCHED, 0.5)
+    for cap, both in zip(caps, WindowEdges.each(s, model, caps), strict=True):
+        one = WindowEdges.of(s, model, cap)
+        assert np.array_equal(both.leaving, one.leaving)
+        assert np.array_equal(both.arriving, one.arriving)
+        assert both.leaving.max() == cap
+
+
+def test_the_detections_near_the_edges_are_each_sensors_own_search(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Every sensor's at once (binary searches among the arrivals as (sensor, time)), and sensor
+    # by sensor where a time is NaN: the same detections.
+    d = read_detections_csv(CREEP.read_bytes()).without_labels()
+    s = arrange(d, PARAMS)
+    model = kinematic_model(s.positions.size, PARAMS)
+    at_once = WindowEdges.of(s, model, UNMATCHED)
+    monkeypatch.setitem(s.__dict__, "arrival_keys", None)
+    one_by_one = WindowEdges.of(s, model, UNMATCHED)
+    assert np.count_nonzero(at_once.leaving) > 0 and np.count_nonzero(at_once.arriving) > 0
+    assert np.array_equal(at_once.leaving, one_by_one.leaving)
+    assert np.array_equal(at_once.arriving, one_by_one.arriving)

@@ -186,8 +186,10 @@ def test_the_links_across_a_boundary_gated_at_once_are_those_gated_sensor_by_sen
             assert np.array_equal(getattr(found, name), getattr(expected, name))
 
 
-def test_the_arrivals_within_every_window_at_once_are_each_sensors_own_searchsorted():
-    # Windows whose ends fall on arrival times: the left end keeps them, the right end too.
+@pytest.mark.parametrize("nan", [False, True])
+def test_the_arrivals_within_every_window_at_once_are_each_sensors_own_searchsorted(nan: bool):
+    # Windows whose ends fall on arrival times: the left end keeps them, the right end too; and
+    # ends that are NaN or infinite (NaN: one stable sort instead of the binary searches).
     rng = np.random.default_rng(8)
     s = arrange(three_sensors(rng, 30), PARAMS)
     s.sorted_time[:] = np.round(s.sorted_time)  # ties, and ends on them
@@ -196,6 +198,9 @@ def test_the_arrivals_within_every_window_at_once_are_each_sensors_own_searchsor
     q = rng.integers(1, 3, 50)
     lo = np.round(rng.uniform(0.0, 220.0, 50))
     hi = lo + rng.integers(-2, 20, 50)
+    lo[:3], hi[3:6] = -np.inf, np.inf
+    if nan:
+        lo[10], hi[11], lo[12], hi[12] = np.nan, np.nan, np.nan, np.nan
     first, count = _arrivals_between(s, q, lo, hi)
     for i in range(50):
         times = s.sorted_time[s.start[q[i]] : s.start[q[i] + 1]]
@@ -221,3 +226,33 @@ def test_links_gated_chunk_by_chunk_are_those_gated_at_once(
         assert whole.a.size > 100
         for name in ("a", "b", "r_time", "ratio", "speed_spread", "span"):
             assert np.array_equal(getattr(chunked, name), getattr(whole, name))
+
+
+def test_a_narrower_gate_picked_from_a_wider_ones_links_is_that_gate_at_once():
+    # To the last bit, in the same order, each link's own cost too: what a forward pass takes
+    # from the re-pairing sweep's gating (its gate is REFINE_GATE_FACTOR times the pass's).
+    rng = np.random.default_rng(9)
+    s = arrange(three_sensors(rng, 15), PARAMS)
+    model = kinematic_model(3, PARAMS, tails=Tails(0.05, 4.0))
+    wide = Gate.of(s, model, PARAMS, 2.0 * PARAMS.gate_cost)
+    assert wide.every is not None
+    for gate in (PARAMS.gate_cost, 0.3 * PARAMS.gate_cost):
+        narrow, direct = wide.narrowed(gate), Gate.of(s, model, PARAMS, gate)
+        assert narrow.every is not None and direct.every is not None
+        assert narrow.gate == gate
+        assert 0 < direct.every.pairs.a.size < wide.every.pairs.a.size
+        assert np.array_equal(narrow.every.bounds, direct.every.bounds)
+        for name in ("a", "b", "r_time", "ratio", "speed_spread", "span", "own"):
+            assert np.array_equal(
+                getattr(narrow.every.pairs, name), getattr(direct.every.pairs, name)
+            )
+
+
+def test_a_narrower_gate_of_a_gating_sensor_by_sensor_gates_sensor_by_sensor():
+    rng = np.random.default_rng(10)
+    s = arrange(three_sensors(rng, 60), PARAMS)
+    model = kinematic_model(3, PARAMS)
+    wide = Gate.of(s, model, PARAMS, 2.0 * PARAMS.gate_cost)
+    assert wide.every is None
+    narrow = wide.narrowed(PARAMS.gate_cost)
+    assert narrow.every is None and narrow.gate == PARAMS.gate_cost

@@ -9,15 +9,19 @@ import pytest
 
 from roadlink.association.associators.assignment import AssignmentParams
 from roadlink.association.associators.assignment.anchors import Anchors
+from roadlink.association.associators.assignment.associator import link_and_learn
 from roadlink.association.associators.assignment.gating import Pairs
-from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR
+from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR, within_time_scale
+from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import (
+    Unchanged,
     fragment_ends,
     refine_boundaries,
     suffix_sums,
 )
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.associators.assignment.tracks import successors
+from roadlink.simulation import preset, simulate
 from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
 
 PARAMS = AssignmentParams()
@@ -119,3 +123,43 @@ def test_joining_fragments_pays_the_forward_pass_gate_where_anchors_weigh():
     free = Anchors(np.full(4, -1), np.zeros(4), weight=np.array([0.0, 0.0]))
     assert not fragment_ends(PARAMS, free, 1, (nxt, prv), pairs).any()
     assert not fragment_ends(PARAMS, None, 1, (nxt, prv), pairs).any()
+
+
+FAULTS = {"miss_probability": 0.1, "false_alarm_rate": 0.02, "velocity_noise": 0.03}
+FEATURES = {"lanes": 3, "vehicle_lengths": True, "length_noise": 0.05, "miss_probability": 0.1}
+
+
+@pytest.mark.parametrize("traffic", [{}, FAULTS, FEATURES])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_sweep_worked_out_at_once_is_the_sweep_boundary_by_boundary(
+    traffic: dict[str, object], seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Paper-size batches (every sensor's links gated at once), after the associator's linking:
+    # tracks, whether a link changed, and every confidence to the bit, whether the sweep
+    # changes links (then it is made boundary by boundary) or not, judging alone or relinking.
+    s = arrange(simulate(preset("large", **traffic), seed=seed).detections, PARAMS)
+    params = within_time_scale(PARAMS, s.typical_travel_time())
+    prior = segment_prior(s, params.max_skip + 1, params)
+    track, model, anchor = link_and_learn(s, params, prior, prior, params.em_rounds + 1)
+    if seed == 2:
+        # Tracks cut in two halfway along the road: fragments to join, links change.
+        cut = (track >= 0) & (track % 2 == 0) & (s.sensor >= s.positions.size // 2)
+        track = np.where(cut, track + track.max() + 1, track)
+    options: list[dict[str, object]] = [{}, {"tentative": True}, {"relink": False}]
+    found = []
+    for plain in (False, True):
+        if plain:
+            monkeypatch.setattr(Unchanged, "sweep", lambda *_: None)
+        for option in options:
+            confidence = np.full(track.size, np.nan)
+            after, changed = refine_boundaries(
+                s, model, params, track.copy(), confidence, anchor=anchor, **option
+            )  # type: ignore[arg-type]
+            found.append((after, changed, confidence))
+    for (after, changed, confidence), (plain_after, plain_changed, plain_confidence) in zip(
+        found[:3], found[3:], strict=True
+    ):
+        assert np.array_equal(after, plain_after) and changed == plain_changed
+        assert np.array_equal(confidence, plain_confidence, equal_nan=True)
+    if seed == 2:
+        assert found[0][1]  # the fragments were joined

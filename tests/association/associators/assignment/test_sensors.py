@@ -4,7 +4,11 @@ import numpy as np
 import pytest
 
 from roadlink.association.associators.assignment import AssignmentParams
-from roadlink.association.associators.assignment.sensors import KINEMATIC_SKEW, arrange, travel_time
+from roadlink.association.associators.assignment.sensors import (
+    KINEMATIC_SKEW,
+    arrange,
+    travel_time,
+)
 from roadlink.association.detections import Detections
 
 
@@ -64,3 +68,38 @@ def test_detections_by_track_are_in_lexsorts_order():
     assigned = np.flatnonzero(track >= 0)
     expected = assigned[np.lexsort((s.sensor[assigned], track[assigned]))]
     assert np.array_equal(s.by_track(assigned, track), expected)
+
+
+@pytest.mark.parametrize("reach", [1, 2, 3, 7])
+def test_every_detection_reaching_the_sensors_after_it_is_by_sensor_then_order(reach: int):
+    # The order of one lexsort by (sensor reached, place in `order`), to the element.
+    rng = np.random.default_rng(4)
+    d = Detections.from_columns(
+        position=rng.choice([0.0, 100.0, 250.0, 300.0, 420.0], 60),
+        velocity=rng.uniform(15.0, 35.0, 60),
+        timestamp=rng.uniform(0.0, 100.0, 60),
+    )
+    s = arrange(d, AssignmentParams())
+    n = s.time.size
+    a = np.tile(s.order, reach)
+    q = s.sensor[a] + np.repeat(np.arange(1, reach + 1), n)
+    by = np.lexsort((np.tile(np.arange(n), reach), q))
+    by = by[q[by] < s.positions.size]
+    found_a, found_q = s.reaching(reach)
+    assert np.array_equal(found_a, a[by]) and np.array_equal(found_q, q[by])
+
+
+def test_arrival_keys_sort_as_sensor_then_time_and_none_with_a_nan_time():
+    d = Detections.from_columns(
+        position=[0.0, 0.0, 100.0, 100.0],
+        velocity=[20.0] * 4,
+        timestamp=[3.0, 1.0, 2.0, 0.5],
+    )
+    s = arrange(d, AssignmentParams())
+    keys = s.arrival_keys
+    assert keys is not None
+    assert np.array_equal(np.sort(keys), keys)
+    assert np.array_equal(keys.real, [0, 0, 1, 1]) and np.array_equal(keys.imag, [1, 3, 0.5, 2])
+    s = arrange(d, AssignmentParams())
+    s.sorted_time[0] = np.nan
+    assert s.arrival_keys is None

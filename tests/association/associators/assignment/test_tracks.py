@@ -2,15 +2,23 @@
 chain of detections read both ways."""
 
 import numpy as np
+import pytest
 
 from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.learning import learn_segments
+from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR
+from roadlink.association.associators.assignment.prior import segment_prior
+from roadlink.association.associators.assignment.refine import refine_boundaries
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.associators.assignment.tracks import (
+    SweepSetup,
+    build_tracks,
     duplicate_followers,
     successors,
     tracks_from_links,
 )
 from roadlink.association.detections import Detections
+from roadlink.simulation import preset, simulate
 
 
 def three_sensors() -> Detections:
@@ -52,3 +60,80 @@ def test_tracks_from_links_number_the_chains_and_leave_the_rest_out():
     # Read back, the links are what they were built from.
     nxt, back = successors(s, tracks_from_links(s, prv, np.ones(6, dtype=bool)))
     assert back.tolist() == prv.tolist() and nxt.tolist() == [2, 3, 4, 5, -1, -1]
+
+
+def test_a_pass_that_works_out_the_sweeps_gating_builds_the_same_tracks_and_hands_it_over():
+    # A paper-size batch (every sensor's links gated at once): the pass takes its gating and
+    # edges from the sweep's, at its narrower gate, and the sweep finds them ready for this
+    # model alone; tracks, re-paired tracks and confidences are those worked out apart.
+    params = AssignmentParams()
+    s = arrange(simulate(preset("large"), seed=1).detections, params)
+    model = segment_prior(s, params.max_skip + 1, params)
+    leader = duplicate_followers(s, params)
+    setup = SweepSetup()
+    plain = build_tracks(s, model, params, leader, None, 0.0, 1.0)
+    shared = build_tracks(s, model, params, leader, None, 0.0, 1.0, sweep=setup)
+    assert np.array_equal(plain, shared) and (plain >= 0).sum() > 50
+    wide = REFINE_GATE_FACTOR * params.gate_cost
+    ready = setup.of(model, wide)
+    assert ready is not None and ready[0].every is not None
+    assert setup.of(model.copy(), wide) is None and setup.of(model, params.gate_cost) is None
+    confidence = [np.full(s.time.size, np.nan) for _ in range(2)]
+    apart = refine_boundaries(s, model, params, plain.copy(), confidence[0])
+    together = refine_boundaries(s, model, params, plain.copy(), confidence[1], setup=setup)
+    assert np.array_equal(apart[0], together[0]) and apart[1] == together[1]
+    assert np.array_equal(confidence[0], confidence[1], equal_nan=True)
+
+
+FAULTS = {"miss_probability": 0.1, "false_alarm_rate": 0.02, "duplicate_probability": 0.05}
+FEATURES = {"lanes": 3, "vehicle_lengths": True, "length_noise": 0.05, "velocity_noise": 0.03}
+
+
+@pytest.mark.parametrize("traffic", [{}, FAULTS, FEATURES])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_pass_that_foresees_tracks_builds_what_it_builds_without(
+    traffic: dict[str, object], seed: int
+) -> None:
+    # Paper-size batches, the second round's pass: foreseeing the first round's tracks, its
+    # own, or its own cut at one sensor (the pass goes on sensor by sensor from there, or from
+    # the start), it builds the tracks it builds alone.
+    params = AssignmentParams()
+    s = arrange(simulate(preset("medium", **traffic), seed=seed).detections, params)
+    prior = segment_prior(s, params.max_skip + 1, params)
+    leader = duplicate_followers(s, params)
+    first = build_tracks(s, prior, params, leader, None, 0.0, 1.0)
+    model = learn_segments(s, first, params, prior)
+    plain = build_tracks(s, model, params, leader, None, 0.0, 1.0)
+    cut = plain.copy()
+    for sensor in (1, s.positions.size // 2, s.positions.size - 1):
+        late = (s.sensor >= sensor) & (cut == cut[s.members(sensor)[0]])
+        cut[late] = cut.max() + 1
+    for expected in (first, plain, cut, np.full_like(plain, -1)):
+        foreseeing = build_tracks(s, model, params, leader, None, 0.0, 1.0, expected=expected)
+        assert np.array_equal(foreseeing, plain)
+
+
+@pytest.mark.parametrize("window", [0.5, 5.0, 60.0])
+@pytest.mark.parametrize("name", ["medium", "congested"])
+def test_the_reports_each_may_duplicate_are_each_sensors_own_lag_by_lag(
+    window: float, name: str
+) -> None:
+    # Every sensor's reports at once, lag after lag (few reports a sensor), or sensor by sensor
+    # (the congested preset's many): the leaders found sensor by sensor.
+    params = AssignmentParams(duplicate_window=window, duplicate_velocity_tolerance=0.3)
+    d = simulate(preset(name, duplicate_probability=0.3, false_alarm_rate=0.1), seed=3)
+    s = arrange(d.detections, params)
+    leader = np.full(s.time.size, -1, dtype=np.int64)
+    tolerance = np.log1p(params.duplicate_velocity_tolerance)
+    for k in range(s.positions.size):
+        m = s.members(k)
+        for lag in range(1, m.size):
+            later, earlier = m[lag:], m[:-lag]
+            close = s.time[later] - s.time[earlier] <= params.duplicate_window
+            if not close.any():
+                break
+            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
+            fresh = alike & (leader[later] < 0)
+            leader[later[fresh]] = earlier[fresh]
+    found = duplicate_followers(s, params)
+    assert (found >= 0).sum() > 3 and np.array_equal(found, leader)

@@ -26,7 +26,11 @@ from roadlink.association.associators.assignment.params import (
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import refine_boundaries
 from roadlink.association.associators.assignment.sensors import Sensors, arrange
-from roadlink.association.associators.assignment.tracks import build_tracks, duplicate_followers
+from roadlink.association.associators.assignment.tracks import (
+    SweepSetup,
+    build_tracks,
+    duplicate_followers,
+)
 from roadlink.association.associators.base import Associator, Progress
 from roadlink.association.detections import Detections, FloatArray, IntArray
 
@@ -55,8 +59,9 @@ class AssignmentAssociator(Associator):
         # about the same: progress is the share of passes done.
         rounds = params.em_rounds + 1
         passes = Passes(progress, rounds + params.refine_sweeps)
-        track, model, anchor = link_and_learn(s, params, prior, prior, rounds, passes)
-        track, confidence = repair_and_judge(s, params, model, track, anchor, passes, rounds)
+        sweep = SweepSetup()
+        track, model, anchor = link_and_learn(s, params, prior, prior, rounds, passes, sweep)
+        track, confidence = repair_and_judge(s, params, model, track, anchor, passes, rounds, sweep)
         target = confirm_targets(s, model, params, track, anchor)
         target, self.link_confidence = cut_weak_links(s, target, confidence, params.min_confidence)
         return target
@@ -77,6 +82,7 @@ def link_and_learn(
     model: SegmentModel,
     rounds: int,
     passes: Passes = Passes(),
+    sweep: SweepSetup | None = None,
 ) -> tuple[IntArray, SegmentModel, Anchors | None]:
     """`rounds` sequential passes from `model`, learning the segments between them (towards
     `prior`), and lane order's anchors from the first tracks, their chains drawn again once with
@@ -86,7 +92,10 @@ def link_and_learn(
     A round that builds the tracks the round before built, with the same anchors, ends the
     loop: learning is a function of the tracks, so every later round would learn this round's
     model again and build these tracks again (on a paper-size batch the first round's tracks
-    are usually final, and the rounds after it were most of the associator's time)."""
+    are usually final, and the rounds after it were most of the associator's time).
+
+    A round whose model the re-pairing sweep may use (one that may end the loop, or the last)
+    works out the sweep's gating and edges into `sweep`, where given (`tracks.SweepSetup`)."""
     leader = duplicate_followers(s, params)
     track = first = np.zeros(0, dtype=np.int64)
     anchor, chains = None, None
@@ -94,8 +103,18 @@ def link_and_learn(
     redraw = s.features is not None and s.features.has_length()
     learned_from = None  # the tracks the current model was learned from, with these anchors
     for r in range(rounds):
+        final = learned_from is not None or r + 1 == rounds  # perhaps the sweep's model
         track = build_tracks(
-            s, model, params, leader, passes.progress, r / passes.total, 1.0 / passes.total, anchor
+            s,
+            model,
+            params,
+            leader,
+            passes.progress,
+            r / passes.total,
+            1.0 / passes.total,
+            anchor,
+            sweep if final and params.refine_sweeps > 0 else None,
+            learned_from,
         )
         if learned_from is not None and np.array_equal(track, learned_from):
             if passes.progress:
@@ -133,6 +152,7 @@ def repair_and_judge(
     anchor: Anchors | None,
     passes: Passes = Passes(),
     done: int = 0,
+    setup: SweepSetup | None = None,
 ) -> tuple[IntArray, FloatArray]:
     """The re-pairing sweeps (after `done` passes of the run), and each link's confidence: the
     last sweep judges the links it keeps (docs/assignment.md, Confidence), or, with no sweep,
@@ -140,12 +160,13 @@ def repair_and_judge(
 
     The sweeps before the last judge tentatively (until they change a link): a sweep that
     changes none leaves every later sweep the same work, so the loop ends there with its
-    judging (on a paper-size batch the first sweep usually changes nothing)."""
+    judging (on a paper-size batch the first sweep usually changes nothing). Every sweep takes
+    its gating and edges from `setup` where the forward pass worked them out with this model."""
     confidence = np.full(track.size, np.nan)
     for sweep in range(params.refine_sweeps):
         last = sweep + 1 == params.refine_sweeps
         track, changed = refine_boundaries(
-            s, model, params, track, confidence, anchor=anchor, tentative=not last
+            s, model, params, track, confidence, anchor=anchor, tentative=not last, setup=setup
         )
         if passes.progress:
             passes.progress(

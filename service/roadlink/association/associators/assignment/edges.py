@@ -25,11 +25,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.sensors import Sensors, travel_time
 from roadlink.association.detections import FloatArray, IntArray
+
+BoolArray = npt.NDArray[np.bool_]
 
 # The spread (log travel time) of the prediction from one end alone: the far end's speed is
 # unknown, taken as its sensor's median, and a queue's spot speeds tell its crawl poorly.
@@ -55,9 +58,17 @@ class WindowEdges:
         Only the detections near an edge are worked out: one whose room to the edge exceeds
         what its segment's slowest detection would take, EDGE_FAR spreads late, pays nothing
         (on a long batch, all but the first and last minutes)."""
-        leaving, arriving = np.zeros(s.time.size), np.zeros(s.time.size)
+        return cls.each(s, model, (unmatched,))[0]
+
+    @classmethod
+    def each(
+        cls, s: Sensors, model: SegmentModel, unmatched: tuple[float, ...]
+    ) -> list[WindowEdges]:
+        """`of` at each of these `unmatched` costs, worked out once: only the cap differs (a
+        forward pass and the re-pairing sweep after it, with the same model)."""
+        n = s.time.size
         if s.positions.size < 2:
-            return cls(leaving, arriving)
+            return [cls(np.zeros(n), np.zeros(n)) for _ in unmatched]
         segment = _Segments.of(s, model)
         n_segments = s.positions.size - 1
         up = _near(s, range(n_segments), s.last_time[1:], segment.leaving_reach(s), before=False)
@@ -66,7 +77,7 @@ class WindowEdges:
             travel_time(segment.gap[p], s.speed[up], s.median_speed[p + 1], segment.skew[p])
         )
         room = s.last_time[p + 1] - s.time[up]
-        leaving[up] = _cost_outside(room, ahead, segment.spread[p], unmatched)
+        up_outside = _Outside.of(room, ahead, segment.spread[p])
         down = _near(
             s, range(1, n_segments + 1), s.first_time[:-1], segment.arriving_reach(s), before=True
         )
@@ -75,8 +86,14 @@ class WindowEdges:
             travel_time(segment.gap[p], s.median_speed[p], s.speed[down], segment.skew[p])
         )
         room = s.time[down] - s.first_time[p]
-        arriving[down] = _cost_outside(room, behind, segment.spread[p], unmatched)
-        return cls(leaving, arriving)
+        down_outside = _Outside.of(room, behind, segment.spread[p])
+        edges = []
+        for cap in unmatched:
+            leaving, arriving = np.zeros(n), np.zeros(n)
+            leaving[up] = up_outside.cost(cap)
+            arriving[down] = down_outside.cost(cap)
+            edges.append(cls(leaving, arriving))
+        return edges
 
     def cost(self, pairs: Pairs) -> FloatArray:
         """What each candidate link a -> b pays for the window."""
@@ -128,7 +145,11 @@ def _near(
     """The detections of each of these sensors within its `reach` of its `edge` (`edge[k]` and
     `reach[k]` for the k-th sensor named): after edge - reach where the edge closes the window,
     before edge + reach where it opens it. Each sensor's detections are sorted by time, so this
-    is one search a sensor, whatever the batch's length."""
+    is one search a sensor, whatever the batch's length; every sensor's at once, among the
+    arrivals as (sensor, time) (`Sensors.arrival_keys`), where no time is NaN."""
+    at_once = _near_at_once(s, sensors, edge + reach if before else edge - reach, before)
+    if at_once is not None:
+        return at_once
     parts = []
     for k, q in enumerate(sensors):
         lo, hi = int(s.start[q]), int(s.start[q + 1])
@@ -141,17 +162,48 @@ def _near(
     return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
 
 
-def _cost_outside(
-    room: FloatArray, log_expected: FloatArray, spread: FloatArray, unmatched: float
-) -> FloatArray:
-    """-2 log P(travel time <= room), at most `unmatched`, for a log-normal travel time of centre
-    `log_expected` and `spread`: `unmatched` where there is no room at all, 0 where the room is
-    EDGE_FAR spreads or more beyond the centre."""
-    from scipy.special import log_ndtr  # on first use, as in `matching.match`
+def _near_at_once(s: Sensors, sensors: range, bound: FloatArray, before: bool) -> IntArray | None:
+    """`_near` of every sensor at once, given each sensor's bound (edge + reach before the
+    opening edge, edge - reach after the closing one): one binary search each among the
+    arrivals as (sensor, time); None where a time or a bound is NaN."""
+    keys = s.arrival_keys
+    if keys is None or np.isnan(bound).any():
+        return None
+    q = np.arange(sensors.start, sensors.stop)
+    ends = np.empty(q.size, dtype=np.complex128)
+    ends.real = q
+    ends.imag = bound
+    if before:
+        lo, hi = s.start[q], np.searchsorted(keys, ends, side="left")
+    else:
+        lo, hi = np.searchsorted(keys, ends, side="right"), s.start[q + 1]
+    count = hi - lo
+    at = np.repeat(lo - (np.cumsum(count) - count), count)
+    at += np.arange(at.size)
+    near: IntArray = s.order[at]
+    return near
 
-    with np.errstate(divide="ignore"):
-        z = (np.log(np.maximum(room, 0.0)) - log_expected) / spread
-    cost = np.zeros(z.size)
-    near = z < EDGE_FAR
-    cost[near] = np.minimum(-2.0 * log_ndtr(z[near]), unmatched)
-    return cost
+
+@dataclass(frozen=True)
+class _Outside:
+    """-2 log P(travel time <= room) for a log-normal travel time of centre `log_expected` and
+    `spread`, where the room is less than EDGE_FAR spreads beyond the centre (`near`); 0 beyond.
+    No room at all is -2 log 0 = inf, capped by `cost`."""
+
+    near: BoolArray
+    minus_two_log: FloatArray  # of the detections `near`
+
+    @classmethod
+    def of(cls, room: FloatArray, log_expected: FloatArray, spread: FloatArray) -> _Outside:
+        from scipy.special import log_ndtr  # on first use, as in `matching.match`
+
+        with np.errstate(divide="ignore"):
+            z = (np.log(np.maximum(room, 0.0)) - log_expected) / spread
+        near = z < EDGE_FAR
+        return cls(near, -2.0 * log_ndtr(z[near]))
+
+    def cost(self, unmatched: float) -> FloatArray:
+        """The costs, at most `unmatched`."""
+        cost = np.zeros(self.near.size)
+        cost[self.near] = np.minimum(self.minus_two_log, unmatched)
+        return cost

@@ -43,6 +43,18 @@ class Pairs:
             None if self.own is None else self.own[keep],
         )
 
+    def part(self, lo: int, hi: int) -> Pairs:
+        """Pairs lo to hi (views)."""
+        return Pairs(
+            self.a[lo:hi],
+            self.b[lo:hi],
+            self.r_time[lo:hi],
+            self.ratio[lo:hi],
+            self.speed_spread[lo:hi],
+            self.span[lo:hi],
+            None if self.own is None else self.own[lo:hi],
+        )
+
     @classmethod
     def concatenate(cls, parts: list[Pairs]) -> Pairs:
         own = [p.own for p in parts if p.own is not None]
@@ -324,15 +336,38 @@ class EverySensor:
         n, n_sensors = s.time.size, s.positions.size
         a, q = s.reaching(params.max_skip + 1)
         d = Departures.towards(s, model, a, q)
-        fastest = np.minimum.reduceat(s.sorted_inverse_speed, s.start[:-1])[q]
-        slowest = np.maximum.reduceat(s.sorted_inverse_speed, s.start[:-1])[q]
-        lo, hi = _arrival_window(s, model, params, d, q, gate, fastest, slowest)
+        fastest, slowest = _inverse_speed_range(s)
+        lo, hi = _arrival_window(s, model, params, d, q, gate, fastest[q], slowest[q])
         first, count = _arrivals_between(s, q, lo, hi)
         pairs = _within_gate(s, model, params, d, None, first, count, gate)
         # Each link's own cost, once for the pass (numpy's fixed cost per call, not the links,
         # is a paper-size batch's work: a dozen calls for every sensor otherwise).
         pairs.own = pairs.own_cost(model, params)
         return cls(pairs, np.searchsorted(s.sensor[pairs.b], np.arange(n_sensors + 1)), n)
+
+    def narrowed(
+        self, s: Sensors, model: SegmentModel, params: AssignmentParams, gate: float
+    ) -> EverySensor | None:
+        """What `gate` with a narrower `gate` gives, from these links (gated with this `model`
+        at a wider gate): those within the narrower gate's arrival windows (`searchsorted`'s
+        left at lo and right at hi: lo <= time <= hi) and within the gate itself, in the same
+        order, each with the same numbers (every number of a link is its own). A wider gate's
+        windows hold the narrower's, and its links those of any narrower gate. None where a
+        window's end is NaN (`searchsorted` and a comparison differ there)."""
+        pairs = self.pairs
+        q = s.sensor[pairs.b]
+        d = Departures.towards(s, model, pairs.a, q)
+        fastest, slowest = _inverse_speed_range(s)
+        lo, hi = _arrival_window(s, model, params, d, q, gate, fastest[q], slowest[q])
+        if np.isnan(hi).any():
+            return None
+        arrival = s.time[pairs.b]
+        keep = model.time_tails.within(pairs.r_time, pairs.span, params.miss_cost, gate)
+        keep &= lo <= arrival
+        keep &= arrival <= hi
+        kept = pairs.take(keep)
+        bounds = np.searchsorted(s.sensor[kept.b], np.arange(s.positions.size + 1))
+        return EverySensor(kept, bounds, self.detections)
 
     def into(self, q: int, a: IntArray, among: BoolArray | None = None) -> Pairs:
         """`gated_pairs` from detections a (within reach of q) to sensor q (to those `among`)."""
@@ -359,6 +394,14 @@ class EverySensor:
         return self.pairs.take(lo + np.flatnonzero(keep))
 
 
+def _inverse_speed_range(s: Sensors) -> tuple[FloatArray, FloatArray]:
+    """Each sensor's least and greatest inverse speed: its fastest and its slowest."""
+    return (
+        np.minimum.reduceat(s.sorted_inverse_speed, s.start[:-1]),
+        np.maximum.reduceat(s.sorted_inverse_speed, s.start[:-1]),
+    )
+
+
 def _arrivals_between(
     s: Sensors, q: IntArray, lo: FloatArray, hi: FloatArray
 ) -> tuple[IntArray, IntArray]:
@@ -367,6 +410,18 @@ def _arrivals_between(
     every sensor at once by one stable sort of the arrivals and the window's ends together, keyed
     by (sensor, time, lo before an equal time, hi after it): each end's place among the sorted
     arrivals is the number of arrivals before it."""
+    keys = s.arrival_keys
+    if keys is not None:
+        # The same places by one binary search each among the arrivals as (sensor, time),
+        # which are sorted so (a third of the sort's time on a paper-size batch).
+        ends = np.empty((2, q.size), dtype=np.complex128)
+        ends.real = q
+        ends.imag[0] = lo
+        ends.imag[1] = hi
+        if not np.isnan(ends.imag).any():
+            first = np.searchsorted(keys, ends[0], side="left")
+            last = np.searchsorted(keys, ends[1], side="right")
+            return first, np.maximum(last - first, 0)
     n, m = s.time.size, q.size
     sensor = np.concatenate([s.sensor[s.order], q, q])
     time = np.concatenate([s.sorted_time, lo, hi])
@@ -395,6 +450,16 @@ class Gate:
         if s.time.size > GATE_AT_ONCE * s.positions.size:
             return cls(s, model, params, gate)
         return cls(s, model, params, gate, EverySensor.gate(s, model, params, gate))
+
+    def narrowed(self, gate: float) -> Gate:
+        """This pass's gating at a narrower `gate`: from this one's links where they were gated
+        at once (`EverySensor.narrowed`), else anew."""
+        every = None
+        if self.every is not None:
+            every = self.every.narrowed(self.s, self.model, self.params, gate)
+            if every is None:
+                return Gate.of(self.s, self.model, self.params, gate)
+        return Gate(self.s, self.model, self.params, gate, every)
 
     def pairs(self, a: IntArray, q: int, among: BoolArray | None = None) -> Pairs:
         """`gated_pairs(s, model, params, a, q, gate, among)`, a within reach of q."""

@@ -54,6 +54,12 @@ def unique_inverse(nodes: Nodes) -> tuple[Nodes, Nodes]:
     )
 
 
+def _distinct(nodes: Nodes) -> bool:
+    """Whether no node occurs twice (a handful of them)."""
+    ids = nodes.tolist()
+    return len(set(ids)) == len(ids)
+
+
 def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, Nodes]:
     """Minimum-cost one-to-one matching of the (left, right, cost) edges, every node free to stay
     unmatched at cost gate / 2 (so an edge is taken only if it beats leaving both ends alone).
@@ -68,15 +74,15 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     left, right, cost = left[keep], right[keep], cost[keep]
     if left.size == 0:
         return left, right
+    if 2 * left.size <= DENSE_NODES and _distinct(left) and _distinct(right):
+        # No two edges share a node, and each beats leaving its ends alone: all are taken (by
+        # left, as the dense assignment returns them; the lefts' ranks sort as the lefts).
+        by_left = np.argsort(left)
+        return left[by_left], right[by_left]
     lu, li = unique_inverse(left)
     ru, ri = unique_inverse(right)
     n_l, n_r = lu.size, ru.size
     if n_l + n_r <= DENSE_NODES:
-        if n_l == left.size and n_r == right.size:
-            # No two edges share a node, and each beats leaving its ends alone: all are taken
-            # (by left, as the dense assignment returns them).
-            by_left = np.argsort(li)
-            return left[by_left], right[by_left]
         ml, mr = _match_dense(li, ri, cost, gate / 2.0, n_l, n_r)
         return lu[ml], ru[mr]
     # Imported on first use (pipeline.DEFERRED_IMPORTS): every CLI command would pay for it.
@@ -118,10 +124,13 @@ def _match_dense(
     left may take a real right along an edge or its own dummy (cost `alone`); dummies pair freely
     at no cost, which always leaves exactly as many free dummy rows as free dummy columns.
     """
-    square = np.full((n_l + n_r, n_r + n_l), np.inf)
+    size = n_l + n_r
+    square = np.full((size, size), np.inf)
     square[li, ri] = cost
-    square[np.arange(n_l), n_r + np.arange(n_l)] = alone
-    square[n_l + np.arange(n_r), np.arange(n_r)] = alone
+    # The dummies' diagonals, (l, n_r + l) and (n_l + r, r), as strided runs of the flat square.
+    flat = square.reshape(-1)
+    flat[n_r : n_r + n_l * (size + 1) : size + 1] = alone
+    flat[n_l * size : n_l * size + n_r * (size + 1) : size + 1] = alone
     square[n_l:, n_r:] = 0.0
     from scipy.optimize import linear_sum_assignment  # on first use, as in `match`
 
@@ -308,6 +317,24 @@ def _summed(
     return graph.indptr, graph.indices, graph.data
 
 
+# Node ids below this many times their number (or below COMPACT_IDS) index tables as they are.
+COMPACT_FACTOR = 16
+COMPACT_IDS = 4096
+
+
+def _compact(nodes: Nodes) -> Nodes:
+    """Small non-negative integers for the node ids, one to one: the ids themselves where they
+    are such (a judged sweep's boundaries' detections), else their ranks. `chosen_marginals`
+    only asks which edges share a node, which any such numbering tells alike."""
+    if (
+        nodes.size
+        and nodes.min() >= 0
+        and nodes.max() < max(COMPACT_FACTOR * nodes.size, COMPACT_IDS)
+    ):
+        return nodes
+    return unique_inverse(nodes)[1]
+
+
 def chosen_marginals(left: Nodes, right: Nodes, cost: Costs, chosen: Mask, gate: float) -> Costs:
     """For each chosen edge of a one-to-one matching (`chosen` marks them among the candidate
     edges left -> right), the approximate probability that it is in the matching, every node
@@ -321,8 +348,7 @@ def chosen_marginals(left: Nodes, right: Nodes, cost: Costs, chosen: Mask, gate:
     marginal = np.full(n, np.nan)
     if not chosen.any():
         return marginal
-    _, li = unique_inverse(left)
-    _, ri = unique_inverse(right)
+    li, ri = _compact(left), _compact(right)
     # Log likelihood of each edge against leaving both its ends alone.
     log_w = np.clip(-0.5 * (cost - gate), -LOG_ODDS_LIMIT, LOG_ODDS_LIMIT)
     edge_of_left = np.full(li.max() + 1, -1, dtype=np.int64)

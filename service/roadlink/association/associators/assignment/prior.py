@@ -71,17 +71,20 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
     few = [p for p, sample in enumerate(samples) if sample.size < PRIOR_TEST_SAMPLE]
     log_bias[few, 1] = few_targets_priors(s, [samples[p] for p in few], np.array(few) + 1)
 
-    # A typical target's travel time over every segment, and its kinematic prediction.
-    def kinematic(p: int, q: int) -> float:
-        return float(travel_time(float(s.positions[q] - s.positions[p]), medians[p], medians[q]))
+    # A typical target's travel time over every segment, and its kinematic prediction; every
+    # segment of a span at once (the same numbers as segment by segment: the sums add the
+    # segments' times in road order, as `sum` did).
+    def kinematic(span: int) -> FloatArray:
+        p = np.arange(n_sensors - span)
+        return travel_time(s.positions[p + span] - s.positions[p], medians[p], medians[p + span])
 
-    typical = [np.exp(log_bias[p, 1]) * kinematic(p, p + 1) for p in range(n_sensors - 1)]
-    for p in range(n_sensors):
-        for span in range(1, min(max_span, n_sensors - 1 - p) + 1):
-            q = p + span
-            log_ratio[p, span] = np.log(medians[q] / medians[p])
-            if span > 1:
-                log_bias[p, span] = np.log(sum(typical[p:q]) / kinematic(p, q))
+    typical = np.exp(log_bias[:-1, 1]) * kinematic(1)
+    total = typical
+    for span in range(1, min(max_span, n_sensors - 1) + 1):
+        log_ratio[: n_sensors - span, span] = np.log(medians[span:] / medians[:-span])
+        if span > 1:
+            total = total[:-1] + typical[span - 1 :]
+            log_bias[: n_sensors - span, span] = np.log(total / kinematic(span))
     return SegmentModel(
         log_bias,
         np.full(shape, KINEMATIC_SKEW),

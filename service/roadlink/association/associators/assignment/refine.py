@@ -11,7 +11,7 @@ import numpy as np
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.edges import WindowEdges
-from roadlink.association.associators.assignment.gating import Gate, Pairs
+from roadlink.association.associators.assignment.gating import EverySensor, Gate, Pairs
 from roadlink.association.associators.assignment.matching import chosen_marginals, match
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import incoming_pace, outgoing_pace
@@ -22,6 +22,7 @@ from roadlink.association.associators.assignment.params import (
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.associators.assignment.tracks import (
     BoolArray,
+    SweepSetup,
     level_terms,
     successors,
     tracks_from_links,
@@ -38,6 +39,7 @@ def refine_boundaries(
     relink: bool = True,
     anchor: Anchors | None = None,
     tentative: bool = False,
+    setup: SweepSetup | None = None,
 ) -> tuple[IntArray, bool]:
     """Re-pair the tracks across every sensor boundary, seeing both sides whole: the tracks,
     and whether any boundary changed a link.
@@ -56,14 +58,26 @@ def refine_boundaries(
     A `tentative` judging stops at the first boundary that changes a link. A sweep depends on
     the tracks' links alone, so one that changes none leaves the next sweep the same work, and
     its judging is the next sweep's. Links that lane order `anchor`s cost their bonus less, as
-    in the forward pass.
+    in the forward pass. The gating and window edges come from `setup` where a forward pass
+    worked them out with this model (`tracks.SweepSetup`).
     """
     nxt, prv = successors(s, track)
     in_track = track >= 0
     n_sensors = s.positions.size
+    ready = None if setup is None else setup.of(model, REFINE_GATE_FACTOR * params.gate_cost)
+    if ready is None:
+        gate = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
+        edges = WindowEdges.of(s, model, gate.gate / 2.0)
+    else:
+        gate, edges = ready
+    if gate.every is not None:
+        unchanged = Unchanged(s, model, params, gate.every, gate.gate, edges, anchor)
+        kept = unchanged.sweep((nxt, prv), in_track, relink)
+        if kept is not None:
+            if confidence is not None:
+                judge_links(confidence, kept, params.gate_cost)
+            return tracks_from_links(s, prv, in_track), False
     levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
-    gate = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
-    edges = WindowEdges.of(s, model, gate.gate / 2.0)
     changed = False
     judged: list[Judged] = []
     for k in range(1, n_sensors + 1):
@@ -101,6 +115,121 @@ def refine_boundaries(
 
 # A boundary's candidate links, their costs, and which of them the tracks keep.
 Judged = tuple[Pairs, FloatArray, BoolArray]
+
+
+@dataclass(frozen=True)
+class Unchanged:
+    """A sweep worked out at once for every boundary, as if no boundary changed a link: on a
+    paper-size batch (every sensor's links gated at once, `gating.EverySensor`) the first sweep
+    usually changes none, and numpy's fixed costs of each boundary's ends and costs, some
+    eighty calls, were most of its time.
+
+    Were no link changed, every boundary would see the tracks' links as they are: its ends
+    (`ends_at_boundary`), the prefixes' sums (final once the sweep has passed them) and the
+    suffixes', and so its candidates and their costs, are those of the links as they are, and
+    each number of a candidate is its own (the same numbers as boundary by boundary). Each
+    boundary's matching then says whether it keeps its links; the first that does not ends
+    this (None), and the sweep is made boundary by boundary."""
+
+    s: Sensors
+    model: SegmentModel
+    params: AssignmentParams
+    every: EverySensor
+    gate: float
+    edges: WindowEdges
+    anchor: Anchors | None
+
+    def sweep(
+        self, links: tuple[IntArray, IntArray], in_track: BoolArray, relink: bool
+    ) -> list[Judged] | None:
+        """Each boundary's candidates, costs and kept links (`Judged`), in the sweep's order,
+        if no boundary changes a link (`relink=False`: none does); else None."""
+        s, (nxt, prv) = self.s, links
+        n_sensors = s.positions.size
+        tails, crossing, heads = self.ends(links, in_track)
+        pairs, boundary = self.candidates(links, in_track)
+        levels = [Summed.of(s, v, w, nxt, in_track) for v, w in level_terms(s)]
+        for q in range(n_sensors - 1):
+            m = s.members(q)
+            m = m[prv[m] >= 0]
+            for level in levels:
+                level.extend_heads(m, prv[m])
+        cost = boundary_cost(self.params, self.model, pairs, levels, s, links)
+        cost -= anchor_bonus(pairs, self.anchor)
+        cost += self.edges.cost(pairs) + self.fragment_ends(boundary, links, pairs)
+        cuts = np.searchsorted(boundary, np.arange(1, n_sensors + 1)).tolist()
+        judged: list[Judged] = []
+        for i in np.flatnonzero((tails > 0) & (heads > 0)).tolist():
+            lo, hi = cuts[i], cuts[i + 1]
+            here = pairs.part(lo, hi)
+            if relink:
+                # The boundary keeps its links if it links every tail that has a successor,
+                # to that successor, and no other.
+                linked_a, linked_b = match(here.a, here.b, cost[lo:hi], self.gate)
+                if linked_a.size != crossing[i] or not np.array_equal(nxt[linked_a], linked_b):
+                    return None
+            judged.append((here, cost[lo:hi], nxt[here.a] == here.b))
+        return judged
+
+    def ends(
+        self, links: tuple[IntArray, IntArray], in_track: BoolArray
+    ) -> tuple[IntArray, IntArray, IntArray]:
+        """For each boundary k (1 to n_sensors - 1): how many prefixes end before it (the
+        tails of `ends_at_boundary`), how many of those have a successor, and how many suffixes
+        start from it on (its heads)."""
+        s, (nxt, prv) = self.s, links
+        n_sensors, reach = s.positions.size, self.params.max_skip + 1
+        x = np.flatnonzero(in_track)
+        lag = np.arange(reach)
+        # A detection at sensor p ends a prefix at boundaries p + 1 to p + reach, as long as
+        # its successor lies at the boundary or beyond; starts a suffix at boundaries p - reach
+        # + 1 to p, as long as its predecessor lies before the boundary.
+        k = (s.sensor[x] + 1)[:, None] + lag
+        successor = nxt[x][:, None]
+        tail = (k < n_sensors) & ((successor < 0) | (s.sensor[np.maximum(successor, 0)] >= k))
+        k_head = s.sensor[x][:, None] - lag
+        predecessor = prv[x][:, None]
+        head = (k_head >= 1) & ((predecessor < 0) | (s.sensor[np.maximum(predecessor, 0)] < k_head))
+        crossing = tail & (successor >= 0)
+        return (
+            np.bincount(k[tail], minlength=n_sensors)[1:],
+            np.bincount(k[crossing], minlength=n_sensors)[1:],
+            np.bincount(k_head[head], minlength=n_sensors)[1:],
+        )
+
+    def candidates(
+        self, links: tuple[IntArray, IntArray], in_track: BoolArray
+    ) -> tuple[Pairs, IntArray]:
+        """Every boundary's candidate links (`Gate.across` of its ends), boundary after
+        boundary, and each one's boundary."""
+        s, (nxt, prv) = self.s, links
+        n_sensors, reach = s.positions.size, self.params.max_skip + 1
+        k = np.arange(1, n_sensors)
+        bounds = self.every.bounds
+        lo = bounds[k]
+        count = bounds[np.minimum(k + reach, n_sensors)] - lo
+        at = np.repeat(lo - (np.cumsum(count) - count), count)
+        at += np.arange(at.size)
+        k = np.repeat(k, count)
+        a, b = self.every.pairs.a[at], self.every.pairs.b[at]
+        keep = in_track[a] & in_track[b] & (s.sensor[a] < k)
+        keep &= (nxt[a] < 0) | (s.sensor[np.maximum(nxt[a], 0)] >= k)
+        keep &= (prv[b] < 0) | (s.sensor[np.maximum(prv[b], 0)] < k)
+        return self.every.pairs.take(at[keep]), k[keep]
+
+    def fragment_ends(
+        self, boundary: IntArray, links: tuple[IntArray, IntArray], pairs: Pairs
+    ) -> FloatArray:
+        """`fragment_ends` of every boundary's candidates (`boundary`: each one's)."""
+        anchor = self.anchor
+        if anchor is None or anchor.weight is None:
+            return np.zeros(pairs.a.size)
+        nxt, prv = links
+        unheld = (nxt[pairs.a] < 0).astype(np.float64) + (prv[pairs.b] < 0)
+        difference = (REFINE_GATE_FACTOR - 1.0) * self.params.gate_cost / 2.0
+        result: FloatArray = difference * anchor.weight[boundary - 1] * unheld
+        return result
+
 
 # Candidate links judged in one call, about: boundaries with fewer are judged together.
 JUDGED_AT_ONCE = 4096

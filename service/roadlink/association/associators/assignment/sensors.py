@@ -6,11 +6,14 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+import numpy.typing as npt
 
 from roadlink.association.associators.assignment.features import SensorFeatures
 from roadlink.association.associators.assignment.params import AssignmentParams
 from roadlink.association.associators.assignment.robust import median
 from roadlink.association.detections import Detections, FloatArray, IntArray
+
+ComplexArray = npt.NDArray[np.complex128]
 
 # The share of a travel time predicted from the far end's speed, before a segment learns its own:
 # both ends' speeds weigh alike.
@@ -69,17 +72,31 @@ class Sensors:
         """Each sensor's last detection time: where the batch's window closes for it."""
         return self.sorted_time[self.start[1:] - 1]
 
+    @cached_property
+    def arrival_keys(self) -> ComplexArray | None:
+        """Every detection as sensor + i time, in `order`: sorted as numpy sorts complex numbers
+        (by real part, then imaginary), so one `searchsorted` finds a time among one sensor's
+        arrivals (`gating._arrivals_between`). None where a time is NaN (numpy sorts a complex
+        number with a NaN part after all others, whatever its sensor)."""
+        if np.isnan(self.sorted_time).any():
+            return None
+        keys = np.empty(self.time.size, dtype=np.complex128)
+        keys.real = self.sensor[self.order]
+        keys.imag = self.sorted_time
+        return keys
+
     def reaching(self, reach: int) -> tuple[IntArray, IntArray]:
         """Every detection with each of the `reach` sensors after it (those there are), by that
         sensor, then by detection as in `order`: the detections, and the sensors. Worked out
         once a batch: every pass that gates all the links at once (`gating.EverySensor`) asks."""
         if reach not in self._reaching:
-            n = self.time.size
-            a = np.tile(self.order, reach)
-            q = self.sensor[a] + np.repeat(np.arange(1, reach + 1), n)
-            by = np.lexsort((np.tile(np.arange(n), reach), q))
-            by = by[q[by] < self.positions.size]
-            self._reaching[reach] = a[by], q[by]
+            # Sensor q's departures are one run of `order`: the sensors q - reach to q - 1.
+            q = np.arange(1, self.positions.size)
+            lo = self.start[np.maximum(q - reach, 0)]
+            count = self.start[1:-1] - lo
+            at = np.repeat(lo - (np.cumsum(count) - count), count)
+            at += np.arange(at.size)
+            self._reaching[reach] = self.order[at], np.repeat(q, count)
         return self._reaching[reach]
 
     def by_track(self, detections: IntArray, track: IntArray) -> IntArray:

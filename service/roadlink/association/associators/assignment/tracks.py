@@ -11,11 +11,19 @@ import numpy.typing as npt
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.edges import WindowEdges
-from roadlink.association.associators.assignment.gating import Gate
+from roadlink.association.associators.assignment.gating import (
+    GATE_AT_ONCE,
+    EverySensor,
+    Gate,
+    Pairs,
+)
 from roadlink.association.associators.assignment.matching import match
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import Neighbour, PaceModel
-from roadlink.association.associators.assignment.params import AssignmentParams
+from roadlink.association.associators.assignment.params import (
+    REFINE_GATE_FACTOR,
+    AssignmentParams,
+)
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.associators.base import Progress
 from roadlink.association.detections import FloatArray, IntArray
@@ -107,17 +115,42 @@ def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
     if params.duplicate_window <= 0:
         return leader
     tolerance = np.log1p(params.duplicate_velocity_tolerance)
-    for k in range(s.positions.size):
-        m = s.members(k)
+    # With few reports a sensor (a paper-size batch), every sensor's at once, lag after lag (a
+    # sensor's times ascend, and are finite, so once no two reports `lag` apart are close, none
+    # further apart are); else sensor by sensor, so that one sensor's crowd of close reports
+    # costs no pass over the others'. The nearest earlier report first.
+    at_once = n <= GATE_AT_ONCE * s.positions.size
+    runs = [s.order] if at_once else [s.members(k) for k in range(s.positions.size)]
+    for m in runs:
         for lag in range(1, m.size):
             later, earlier = m[lag:], m[:-lag]
             close = s.time[later] - s.time[earlier] <= params.duplicate_window
+            if at_once:
+                close &= s.sensor[later] == s.sensor[earlier]
             if not close.any():
                 break
             alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
             fresh = alike & (leader[later] < 0)
             leader[later[fresh]] = earlier[fresh]
     return leader
+
+
+@dataclass
+class SweepSetup:
+    """The re-pairing sweep's gating and window edges, worked out by a forward pass with the
+    `model` the sweep may use (`associator.link_and_learn`): the pass's own are the same at a
+    narrower gate, so they are taken from the sweep's (`Gate.narrowed`, `WindowEdges.each`),
+    and on a paper-size batch the pass before the sweep is usually the last."""
+
+    model: SegmentModel | None = None
+    gate: Gate | None = None
+    edges: WindowEdges | None = None
+
+    def of(self, model: SegmentModel, gate: float) -> tuple[Gate, WindowEdges] | None:
+        """The sweep's gating and edges for this `model` at this `gate`, if worked out."""
+        if self.model is not model or self.gate is None or self.edges is None:
+            return None
+        return (self.gate, self.edges) if self.gate.gate == gate else None
 
 
 def build_tracks(
@@ -129,26 +162,112 @@ def build_tracks(
     done: float,
     share: float,
     anchor: Anchors | None = None,
+    sweep: SweepSetup | None = None,
+    expected: IntArray | None = None,
 ) -> IntArray:
     """One sequential pass over the sensors: the track index of every detection (-1 = none).
-    Links that lane order `anchor`s (`anchors.py`) cost their bonus less."""
+    Links that lane order `anchor`s (`anchors.py`) cost their bonus less. With `sweep`, the
+    re-pairing sweep's gating and edges with this model are worked out too, and kept there.
+    With `expected` tracks (the round before's), the candidates and costs of every sensor are
+    worked out at once as if the pass built those (`Foreseen`), as long as it does."""
     n_sensors = s.positions.size
     track = np.full(s.time.size, -1, dtype=np.int64)
     level = TrackLevel.start(s, model.pace)
     tail = np.zeros(0, dtype=np.int64)  # last detection of every track, by track index
-    gate = Gate.of(s, model, params, params.gate_cost)
-    edges = WindowEdges.of(s, model, params.gate_cost / 2.0)
+    if sweep is None:
+        gate = Gate.of(s, model, params, params.gate_cost)
+        edges = WindowEdges.of(s, model, params.gate_cost / 2.0)
+    else:
+        wide = Gate.of(s, model, params, REFINE_GATE_FACTOR * params.gate_cost)
+        gate = wide.narrowed(params.gate_cost)
+        edges, wide_edges = WindowEdges.each(s, model, (params.gate_cost / 2.0, wide.gate / 2.0))
+        sweep.model, sweep.gate, sweep.edges = model, wide, wide_edges
     copies = leader if (leader >= 0).any() else None
+    foreseen = None
+    if expected is not None and gate.every is not None:
+        foreseen = Foreseen.of(s, model, params, gate.every, edges, anchor, expected)
+    made: list[tuple[IntArray, IntArray]] = []  # the links made, while foreseen
     for q in range(n_sensors):
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
-            linked_b = _extend_tracks(s, model, params, gate, edges, q, track, tail, level, anchor)
+            if foreseen is None:
+                linked_b = _extend_tracks(
+                    s, model, params, gate, edges, q, track, tail, level, anchor
+                )
+            else:
+                pairs, cost = foreseen.at(q)
+                linked_a, linked_b = match(pairs.a, pairs.b, cost, params.gate_cost)
+                track[linked_b] = track[linked_a]
+                tail[track[linked_b]] = linked_b
+                made.append((linked_a, linked_b))
         born = _births(s.members(q), linked_b, track, copies)
         track[born] = tail.size + np.arange(born.size)
         tail = np.concatenate([tail, born])
+        if foreseen is not None and not np.array_equal(
+            track[s.members(q)], foreseen.expected[s.members(q)]
+        ):
+            # Not the tracks foreseen: on from here sensor by sensor, with the levels of the
+            # tracks made so far.
+            foreseen = None
+            for a, b in made:
+                level.extend(s, a, b, model.pace)
         if progress:
             progress(done + share * (q + 1) / n_sensors)
     return track
+
+
+@dataclass(frozen=True)
+class Foreseen:
+    """A forward pass's candidate links into every sensor and their costs, worked out at once as
+    if the pass built the `expected` tracks: on a paper-size batch the second round builds the
+    first round's tracks, and numpy's fixed costs of each sensor's gating and costs, some fifty
+    calls, were most of a pass. As long as the pass has built those tracks, sensor q sees
+    those tracks' ends before it (its open tails, by track index, `_extend_tracks`) and their
+    levels, so its candidates and their costs are these, each candidate's numbers its own
+    (`build_tracks` checks the tracks sensor by sensor, and goes on without these at the first
+    that differs)."""
+
+    expected: IntArray
+    pairs: Pairs
+    cost: FloatArray
+    bounds: list[int]  # sensor q's candidates are pairs[bounds[q]:bounds[q + 1]]
+
+    @classmethod
+    def of(
+        cls,
+        s: Sensors,
+        model: SegmentModel,
+        params: AssignmentParams,
+        every: EverySensor,
+        edges: WindowEdges,
+        anchor: Anchors | None,
+        expected: IntArray,
+    ) -> Foreseen:
+        nxt, prv = successors(s, expected)
+        gated = every.pairs
+        a, b = gated.a, gated.b
+        q = s.sensor[b]
+        # The open tails before sensor q: a track's last detection before it, within reach
+        # (every gated link is); by track index, as `EverySensor.into` orders them.
+        keep = (expected[a] >= 0) & ((nxt[a] < 0) | (s.sensor[np.maximum(nxt[a], 0)] >= q))
+        kept = np.flatnonzero(keep)
+        key = q[kept] * (int(expected.max(initial=0)) + 1) + expected[a[kept]]
+        pairs = gated.take(kept[np.argsort(key, kind="stable")])
+        level = TrackLevel.start(s, model.pace)
+        for sensor in range(1, s.positions.size):
+            m = s.members(sensor)
+            m = m[prv[m] >= 0]
+            level.extend(s, prv[m], m, model.pace)
+        cost = link_cost(params, model, pairs, level.of(pairs.a), detection_level(s, pairs.b), s)
+        cost -= anchor_bonus(pairs, anchor)
+        cost += edges.cost(pairs)
+        bounds = np.searchsorted(s.sensor[pairs.b], np.arange(s.positions.size + 1))
+        return cls(expected, pairs, cost, bounds.tolist())
+
+    def at(self, q: int) -> tuple[Pairs, FloatArray]:
+        """Sensor q's candidates and their costs."""
+        lo, hi = self.bounds[q], self.bounds[q + 1]
+        return self.pairs.part(lo, hi), self.cost[lo:hi]
 
 
 def _extend_tracks(
