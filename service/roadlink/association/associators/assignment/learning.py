@@ -27,6 +27,7 @@ from roadlink.association.associators.assignment.params import (
 )
 from roadlink.association.associators.assignment.robust import (
     MAD_TO_STD,
+    SHORT_ARRAY,
     column_medians,
     median,
     run_medians,
@@ -229,11 +230,17 @@ def segment_medians(values: FloatArray, segment: list[IntArray], seen: IntArray)
     of each, at once where `robust.run_medians` can."""
     members = [segment[k] for k in seen]
     sizes = np.array([m.size for m in members], dtype=np.int64)
-    at_once = run_medians(values[np.concatenate(members)], sizes) if members else None
-    if at_once is not None:
-        return at_once
+    # run_medians declines runs longer than SHORT_ARRAY: then the links are not gathered for it
+    # (at 10^6 detections, a gather of every link's row cost as much as the medians).
+    if members and sizes.max() <= SHORT_ARRAY:
+        at_once = run_medians(values[np.concatenate(members)], sizes)
+        if at_once is not None:
+            return at_once
+    # Segment by segment, column by column: each column's values gathered at once into a
+    # contiguous array (the same values in the same order as `values[m].T`'s rows, whose strided
+    # rows `median` copied again; half the time at 10^6 detections).
     return np.array(
-        [[median(column) for column in values[m].T] for m in members], dtype=np.float64
+        [[median(column[m]) for column in values.T] for m in members], dtype=np.float64
     ).reshape(len(members), values.shape[1])
 
 
