@@ -150,11 +150,12 @@ def learn_spans(
     seen = np.flatnonzero(counts)
     # An even sample of each segment's links, taken before the gathers.
     here = [segment[k][:: max(1, segment[k].size // SKEW_SAMPLE)] for k in seen]
-    learned = best_skews(dt, dx, s.speed[a], s.speed[b], here)
+    speed_a, speed_b = s.speed[a], s.speed[b]  # gathered once for the skews and the biases
+    learned = best_skews(dt, dx, speed_a, speed_b, here)
     skew[seen] = KINEMATIC_SKEW + weight[seen] * (learned - KINEMATIC_SKEW)
     columns = np.array(spans)
     model.skew[:, columns] = skew.reshape(len(spans), n_sensors).T
-    log_bias = np.log(dt / travel_time(dx, s.speed[a], s.speed[b], skew[key]))
+    log_bias = np.log(dt / travel_time(dx, speed_a, speed_b, skew[key]))
     ratio = s.log_speed[b] - s.log_speed[a]
     segments = Segments(columns, row, key, counts, weight, segment, seen)
     learn_centres_and_spreads(params, model, segments, log_bias, ratio)
@@ -253,9 +254,12 @@ def pace_deviations(s: Sensors, track: IntArray, confident: IntArray) -> FloatAr
     """How far each confident detection's relative speed lies from its track's mean."""
     if not confident.size:
         return np.zeros(0)
-    _, which = np.unique(track[confident], return_inverse=True)
-    mean = np.bincount(which, s.relative_speed[confident]) / np.bincount(which)
-    deviation: FloatArray = s.relative_speed[confident] - mean[which]
+    # Summed by track index (not by rank among the tracks, which took a sort): each track's sum
+    # adds the same values in the same order, so the same means.
+    which = track[confident]
+    relative = s.relative_speed[confident]
+    mean = np.bincount(which, relative)[which] / np.bincount(which)[which]
+    deviation: FloatArray = relative - mean
     return deviation
 
 
