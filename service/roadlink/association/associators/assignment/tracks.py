@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
-from roadlink.association.associators.assignment.costs import Level, link_cost
+from roadlink.association.associators.assignment.costs import Level, affordable, link_cost
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import Gate
 from roadlink.association.associators.assignment.matching import match
@@ -139,10 +139,15 @@ def build_tracks(
     gate = Gate.of(s, model, params, params.gate_cost)
     edges = WindowEdges.of(s, model, params.gate_cost / 2.0)
     copies = leader if (leader >= 0).any() else None
+    # What an anchor can take off a link's cost at most (`costs.affordable`; inf: unknown).
+    most_bonus = 0.0 if anchor is None else float(anchor.bonus.max(initial=0.0))
+    most_bonus = most_bonus if np.isfinite(most_bonus) else np.inf
     for q in range(n_sensors):
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
-            linked_b = _extend_tracks(s, model, params, gate, edges, q, track, tail, level, anchor)
+            linked_b = _extend_tracks(
+                s, model, params, gate, edges, q, track, tail, level, (anchor, most_bonus)
+            )
         born = _births(s.members(q), linked_b, track, copies)
         track[born] = tail.size + np.arange(born.size)
         tail = np.concatenate([tail, born])
@@ -161,13 +166,18 @@ def _extend_tracks(
     track: IntArray,
     tail: IntArray,
     level: TrackLevel,
-    anchor: Anchors | None,
+    anchors: tuple[Anchors | None, float],
 ) -> IntArray:
     """Link the open tracks (those whose last detection lies within `max_skip` missed sensors)
     to sensor q's detections, one to one at least cost; the detections linked. A link pays for
-    the window's edges (`edges.WindowEdges`)."""
+    the window's edges (`edges.WindowEdges`); an anchored one costs its bonus less (`anchors`:
+    the anchors, and their largest bonus)."""
+    anchor, most_bonus = anchors
     open_tails = tail[s.sensor[tail] >= q - 1 - params.max_skip]
     pairs = gate.pairs(open_tails, q)
+    if pairs.a.size:
+        # Links that cost at least the gate whatever their other terms: the matching drops them.
+        pairs = affordable(params, model, pairs, s, most_bonus)
     if not pairs.a.size:
         return np.zeros(0, dtype=np.int64)
     a, b = pairs.a, pairs.b
