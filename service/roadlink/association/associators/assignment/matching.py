@@ -64,7 +64,7 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     (LAPJVsp's shortest-path phase costs in proportion to the graph for every free row, so one
     huge call would be quadratic).
     """
-    keep = cost < gate
+    keep = np.flatnonzero(cost < gate)  # places, once: quicker than the mask three times
     left, right, cost = left[keep], right[keep], cost[keep]
     if left.size == 0:
         return left, right
