@@ -142,7 +142,11 @@ def learn_spans(
     p = s.sensor[a]
     key = row * n_sensors + p
     dt = s.time[b] - s.time[a]
-    dx = s.positions[s.sensor[b]] - s.positions[p]
+    # Every link of a segment spans its gap (`span_links` keeps exactly `span` sensors): one
+    # gap a segment, gathered by key, instead of each far end's sensor and position.
+    first = np.arange(n_sensors)
+    far = np.minimum(first + np.array(spans)[:, None], n_sensors - 1)
+    dx = (s.positions[far] - s.positions[first]).reshape(-1)[key]
     counts = np.bincount(key, minlength=len(spans) * n_sensors)
     weight = counts / (counts + params.min_segment_samples)
     skew = np.full(counts.size, KINEMATIC_SKEW)
