@@ -6,6 +6,7 @@ spreads are shrunk towards those pooled over all segments, and its centres towar
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -193,26 +194,23 @@ def learn_centres_and_spreads(
     n_segments, n_spans = g.counts.size, g.spans.size
     n_sensors = n_segments // n_spans
     seen = g.seen
-    # The two residuals side by side, seen link by link (a row each) through the transpose:
-    # each segment's medians of both from one sort where segments are short; where they are
-    # long, each residual's values are gathered from contiguous memory.
-    residual = np.stack([log_bias, ratio])
+    # The two residuals as two arrays, not one of both: at 10^6 detections one of both is 46 MB,
+    # beyond what the allocator keeps for reuse (32 MB), so each was fresh memory from the
+    # kernel, and its page faults cost as much as the arithmetic.
+    residuals = (log_bias, ratio)
     centre = np.zeros((n_segments, 2))
-    centre[seen] = segment_medians(residual.T, g.links, seen)
-    # Residual by residual (a gather of centre's rows cost 4x as much at 10^6 detections).
-    about = np.empty_like(residual)
-    for j in range(2):
-        np.subtract(residual[j], centre[:, j][g.key], out=about[j])
+    centre[seen] = segment_medians(residuals, g.links, seen)
+    about = [residual - centre[:, j][g.key] for j, residual in enumerate(residuals)]
     # Spreads pooled over a span's segments, each residual taken from its own segment's median.
     bounds = np.searchsorted(g.row, np.arange(n_spans + 1))
     pooled = np.array(
         [
-            [spread(about[0, lo:hi]), spread(about[1, lo:hi])]
+            [spread(about[0][lo:hi]), spread(about[1][lo:hi])]
             for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True)
         ]
     )
     # Each segment's own: the median absolute deviation from its median (`spread_about`).
-    mad = segment_medians(np.abs(about).T, g.links, seen)
+    mad = segment_medians([np.abs(residual) for residual in about], g.links, seen)
     # Every seen segment at once, by the operations that were made segment by segment (so the
     # same numbers; a square as libm's pow makes it, `squares`).
     w, n_k = g.weight[seen], g.counts[seen]
@@ -235,23 +233,24 @@ def learn_centres_and_spreads(
     model.speed_spread[at] = pooled[unseen // n_sensors, 1]
 
 
-def segment_medians(values: FloatArray, segment: list[IntArray], seen: IntArray) -> FloatArray:
-    """The median of each column of `values` (one row a link) over each segment seen: `median`
-    of each, at once where `robust.run_medians` can."""
+def segment_medians(
+    columns: Sequence[FloatArray], segment: list[IntArray], seen: IntArray
+) -> FloatArray:
+    """The median of each of `columns` (one value a link) over each segment seen, a row a
+    segment: `median` of each, at once where `robust.run_medians` can."""
     members = [segment[k] for k in seen]
     sizes = np.array([m.size for m in members], dtype=np.int64)
     # run_medians declines runs longer than SHORT_ARRAY: then the links are not gathered for it
-    # (at 10^6 detections, a gather of every link's row cost as much as the medians).
+    # (at 10^6 detections, a gather of every link's values cost as much as the medians).
     if members and sizes.max() <= SHORT_ARRAY:
-        at_once = run_medians(values[np.concatenate(members)], sizes)
+        at = np.concatenate(members)
+        at_once = run_medians(np.stack([column[at] for column in columns], axis=1), sizes)
         if at_once is not None:
             return at_once
-    # Segment by segment, column by column: each column's values gathered at once into a
-    # contiguous array (the same values in the same order as `values[m].T`'s rows, whose strided
-    # rows `median` copied again; half the time at 10^6 detections).
+    # Segment by segment, column by column, each segment's values gathered at once.
     return np.array(
-        [[median(column[m]) for column in values.T] for m in members], dtype=np.float64
-    ).reshape(len(members), values.shape[1])
+        [[median(column[m]) for column in columns] for m in members], dtype=np.float64
+    ).reshape(len(members), len(columns))
 
 
 def pace_deviations(s: Sensors, track: IntArray, confident: IntArray) -> FloatArray:
