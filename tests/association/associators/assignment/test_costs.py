@@ -6,13 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from roadlink.association.associators.assignment import AssignmentParams
-from roadlink.association.associators.assignment.costs import Level, link_cost
+from roadlink.association.associators.assignment import AssignmentParams, Tails
+from roadlink.association.associators.assignment.costs import Level, affordable, link_cost
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.associators.assignment.tracks import detection_level
 from roadlink.association.detections import Detections
-from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
+from tests.association.associators.assignment.roads import (
+    GAUSSIAN,
+    kinematic_model,
+    steady_vehicles,
+)
 
 PARAMS = AssignmentParams()
 
@@ -97,3 +101,29 @@ def test_each_missed_sensor_adds_the_miss_cost():
     pairs = Pairs.between(s, model, PARAMS, a, b)
     cost = link_cost(PARAMS, model, pairs, detection_level(s, a), detection_level(s, b), s)
     np.testing.assert_allclose(cost, [0.0, PARAMS.miss_cost, 2 * PARAMS.miss_cost], atol=1e-9)
+
+
+@pytest.mark.parametrize("tails", [GAUSSIAN, Tails(0.05, 4.0)])
+@pytest.mark.parametrize("bonus", [0.0, 3.0])
+def test_affordable_drops_only_links_whose_whole_cost_reaches_the_gate(tails, bonus):
+    # Forty vehicles at 20-40 m/s half a second apart past two sensors: many links cost more than
+    # the gate. Those `affordable` drops cost at least the gate with every term, less the bonus;
+    # those it keeps are in their order, each with its own cost.
+    rng = np.random.default_rng(3)
+    starts, speeds = np.arange(40) * 0.5, rng.uniform(20.0, 40.0, 40)
+    s = arrange(steady_vehicles(starts.tolist(), speeds.tolist(), [0.0, 300.0]), PARAMS)
+    model = kinematic_model(2, PARAMS, tails=tails)
+    a, b = s.members(0), s.members(1)
+    pairs = Pairs.between(s, model, PARAMS, np.repeat(a, b.size), np.tile(b, a.size))
+    whole = link_cost(
+        PARAMS, model, pairs, detection_level(s, pairs.a), detection_level(s, pairs.b), s
+    )
+    kept = affordable(PARAMS, model, pairs, s, bonus)
+    place = np.flatnonzero(np.isin(pairs.a * s.time.size + pairs.b, kept.a * s.time.size + kept.b))
+    assert 0 < place.size < pairs.a.size
+    assert np.array_equal(kept.a, pairs.a[place]) and np.array_equal(kept.b, pairs.b[place])
+    assert kept.own is not None
+    assert np.array_equal(kept.own, pairs.own_cost(model, PARAMS)[place])
+    dropped = np.setdiff1d(np.arange(pairs.a.size), place)
+    assert np.all(whole[dropped] - bonus >= PARAMS.gate_cost)
+    assert np.any(whole[place] - bonus < PARAMS.gate_cost)

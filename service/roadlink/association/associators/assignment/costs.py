@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -77,6 +77,31 @@ def link_cost(
     )
     evidence = feature_cost(s.features, model.features, s.sensor, pairs.a, pairs.b, lengths)
     return cost + params.feature_weight * evidence
+
+
+# Far beyond the rounding of a sum of a few costs of a gate's size (a tail's cost at 0 is 0 to
+# within about 1e-15).
+ROUNDING_MARGIN = 1e-6
+
+
+def affordable(
+    params: AssignmentParams, model: SegmentModel, pairs: Pairs, s: Sensors, bonus: float
+) -> Pairs:
+    """The candidate links whose `link_cost`, less an anchor's bonus of at most `bonus`, can come
+    in under the gate, in their order, each with its own cost (`Pairs.own_cost`) worked out.
+
+    Every term `link_cost` and the forward pass add to a link's own cost is at least 0 (a tail's
+    cost, the miss cost, a Cauchy pace change, the window's edges: all weights are at least 0),
+    except detector features' evidence (then every link is kept) and the anchors' bonus: so a link
+    whose own cost alone reaches the gate plus the largest bonus costs at least the gate, and the
+    matching (`cost < gate`) would drop it. At 10^6 detections that is about half of a forward
+    pass's candidates, whose other terms are then not worked out."""
+    own = pairs.own_cost(model, params)
+    pairs = replace(pairs, own=own)
+    if s.features is not None and model.features is not None and params.feature_weight > 0:
+        return pairs
+    keep = own < params.gate_cost + bonus + ROUNDING_MARGIN
+    return pairs if keep.all() else pairs.take(keep)
 
 
 def _or_zeros(values: FloatArray | None, n: int) -> FloatArray:

@@ -33,6 +33,10 @@ class Pairs:
     own: FloatArray | None = None
 
     def take(self, keep: BoolArray | IntArray) -> Pairs:
+        if keep.dtype == np.bool_:
+            # The places once, then a gather per array: a mask's selection from every array
+            # costs about twice as much where the mask follows no pattern (a gate's).
+            keep = np.flatnonzero(keep)
         return Pairs(
             self.a[keep],
             self.b[keep],
@@ -173,8 +177,9 @@ class Departures:
 
 
 # Candidates gated at once: their dozen temporary arrays stay in a core's cache (a call at 10^6
-# detections has about 150,000, 1.2 MB an array).
-GATE_CHUNK = 16384
+# detections has about 150,000, 1.2 MB an array). 32768 gated 10^6 detections' passes about 5 %
+# quicker than 16384 (fewer numpy calls), 8192 10 % slower.
+GATE_CHUNK = 32768
 
 # Up to this many detections per sensor, the links into every sensor are gated in one pass
 # (`EverySensor`): on a paper-size batch (10 a sensor) numpy's fixed cost per call, not the
@@ -278,7 +283,8 @@ def _within_gate_chunk(
     ratio -= np.repeat(d.centre, count)
     variance = np.repeat(d.time_spread * d.time_spread, count)
     r_time = standardised(params, predicted, travel, ratio, variance)
-    keep = model.time_tails.within(r_time, np.repeat(d.span, count), params.miss_cost, gate)
+    within = model.time_tails.within(r_time, np.repeat(d.span, count), params.miss_cost, gate)
+    keep = np.flatnonzero(within)  # once: quicker than the mask for each array (`Pairs.take`)
     kept = which[keep]
     return Pairs(
         d.a[kept],

@@ -6,6 +6,7 @@ spreads are shrunk towards those pooled over all segments, and its centres towar
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +28,7 @@ from roadlink.association.associators.assignment.params import (
 )
 from roadlink.association.associators.assignment.robust import (
     MAD_TO_STD,
+    SHORT_ARRAY,
     column_medians,
     median,
     run_medians,
@@ -141,7 +143,11 @@ def learn_spans(
     p = s.sensor[a]
     key = row * n_sensors + p
     dt = s.time[b] - s.time[a]
-    dx = s.positions[s.sensor[b]] - s.positions[p]
+    # Every link of a segment spans its gap (`span_links` keeps exactly `span` sensors): one
+    # gap a segment, gathered by key, instead of each far end's sensor and position.
+    first = np.arange(n_sensors)
+    far = np.minimum(first + np.array(spans)[:, None], n_sensors - 1)
+    dx = (s.positions[far] - s.positions[first]).reshape(-1)[key]
     counts = np.bincount(key, minlength=len(spans) * n_sensors)
     weight = counts / (counts + params.min_segment_samples)
     skew = np.full(counts.size, KINEMATIC_SKEW)
@@ -149,11 +155,12 @@ def learn_spans(
     seen = np.flatnonzero(counts)
     # An even sample of each segment's links, taken before the gathers.
     here = [segment[k][:: max(1, segment[k].size // SKEW_SAMPLE)] for k in seen]
-    learned = best_skews(dt, dx, s.speed[a], s.speed[b], here)
+    speed_a, speed_b = s.speed[a], s.speed[b]  # gathered once for the skews and the biases
+    learned = best_skews(dt, dx, speed_a, speed_b, here)
     skew[seen] = KINEMATIC_SKEW + weight[seen] * (learned - KINEMATIC_SKEW)
     columns = np.array(spans)
     model.skew[:, columns] = skew.reshape(len(spans), n_sensors).T
-    log_bias = np.log(dt / travel_time(dx, s.speed[a], s.speed[b], skew[key]))
+    log_bias = np.log(dt / travel_time(dx, speed_a, speed_b, skew[key]))
     ratio = s.log_speed[b] - s.log_speed[a]
     segments = Segments(columns, row, key, counts, weight, segment, seen)
     learn_centres_and_spreads(params, model, segments, log_bias, ratio)
@@ -187,21 +194,23 @@ def learn_centres_and_spreads(
     n_segments, n_spans = g.counts.size, g.spans.size
     n_sensors = n_segments // n_spans
     seen = g.seen
-    # The two residuals side by side: each segment's medians of both from one sort.
-    residual = np.stack([log_bias, ratio], axis=1)
+    # The two residuals as two arrays, not one of both: at 10^6 detections one of both is 46 MB,
+    # beyond what the allocator keeps for reuse (32 MB), so each was fresh memory from the
+    # kernel, and its page faults cost as much as the arithmetic.
+    residuals = (log_bias, ratio)
     centre = np.zeros((n_segments, 2))
-    centre[seen] = segment_medians(residual, g.links, seen)
-    about = residual - centre[g.key]
+    centre[seen] = segment_medians(residuals, g.links, seen)
+    about = [residual - centre[:, j][g.key] for j, residual in enumerate(residuals)]
     # Spreads pooled over a span's segments, each residual taken from its own segment's median.
     bounds = np.searchsorted(g.row, np.arange(n_spans + 1))
     pooled = np.array(
         [
-            [spread(about[lo:hi, 0]), spread(about[lo:hi, 1])]
+            [spread(about[0][lo:hi]), spread(about[1][lo:hi])]
             for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True)
         ]
     )
     # Each segment's own: the median absolute deviation from its median (`spread_about`).
-    mad = segment_medians(np.abs(about), g.links, seen)
+    mad = segment_medians([np.abs(residual) for residual in about], g.links, seen)
     # Every seen segment at once, by the operations that were made segment by segment (so the
     # same numbers; a square as libm's pow makes it, `squares`).
     w, n_k = g.weight[seen], g.counts[seen]
@@ -224,26 +233,36 @@ def learn_centres_and_spreads(
     model.speed_spread[at] = pooled[unseen // n_sensors, 1]
 
 
-def segment_medians(values: FloatArray, segment: list[IntArray], seen: IntArray) -> FloatArray:
-    """The median of each column of `values` (one row a link) over each segment seen: `median`
-    of each, at once where `robust.run_medians` can."""
+def segment_medians(
+    columns: Sequence[FloatArray], segment: list[IntArray], seen: IntArray
+) -> FloatArray:
+    """The median of each of `columns` (one value a link) over each segment seen, a row a
+    segment: `median` of each, at once where `robust.run_medians` can."""
     members = [segment[k] for k in seen]
     sizes = np.array([m.size for m in members], dtype=np.int64)
-    at_once = run_medians(values[np.concatenate(members)], sizes) if members else None
-    if at_once is not None:
-        return at_once
+    # run_medians declines runs longer than SHORT_ARRAY: then the links are not gathered for it
+    # (at 10^6 detections, a gather of every link's values cost as much as the medians).
+    if members and sizes.max() <= SHORT_ARRAY:
+        at = np.concatenate(members)
+        at_once = run_medians(np.stack([column[at] for column in columns], axis=1), sizes)
+        if at_once is not None:
+            return at_once
+    # Segment by segment, column by column, each segment's values gathered at once.
     return np.array(
-        [[median(column) for column in values[m].T] for m in members], dtype=np.float64
-    ).reshape(len(members), values.shape[1])
+        [[median(column[m]) for column in columns] for m in members], dtype=np.float64
+    ).reshape(len(members), len(columns))
 
 
 def pace_deviations(s: Sensors, track: IntArray, confident: IntArray) -> FloatArray:
     """How far each confident detection's relative speed lies from its track's mean."""
     if not confident.size:
         return np.zeros(0)
-    _, which = np.unique(track[confident], return_inverse=True)
-    mean = np.bincount(which, s.relative_speed[confident]) / np.bincount(which)
-    deviation: FloatArray = s.relative_speed[confident] - mean[which]
+    # Summed by track index (not by rank among the tracks, which took a sort): each track's sum
+    # adds the same values in the same order, so the same means.
+    which = track[confident]
+    relative = s.relative_speed[confident]
+    mean = np.bincount(which, relative)[which] / np.bincount(which)[which]
+    deviation: FloatArray = relative - mean
     return deviation
 
 

@@ -70,7 +70,7 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     (LAPJVsp's shortest-path phase costs in proportion to the graph for every free row, so one
     huge call would be quadratic).
     """
-    keep = cost < gate
+    keep = np.flatnonzero(cost < gate)  # places, once: quicker than the mask three times
     left, right, cost = left[keep], right[keep], cost[keep]
     if left.size == 0:
         return left, right
@@ -238,7 +238,9 @@ class AugmentedBatches:
             (dummy_row, right_col, single + shift[right_batch]),
             (dummy_row[right_at], dummy_col[left_at], 0.0 + shift[batch]),
         )
-        by_left = np.argsort(left_at * rights.size + right_at)  # by left, then right
+        # Stable (timsort): the gating gives the edges nearly by left already, so this is a
+        # few times quicker than quicksort, and the keys are distinct wherever the order is used.
+        by_left = np.argsort(left_at * rights.size + right_at, kind="stable")  # by left, right
         if np.any(np.diff((left_at * rights.size + right_at)[by_left]) == 0):
             arrays = _summed(entries, lefts.size + rights.size)
         else:
@@ -296,7 +298,9 @@ def _canonical(
     first = indptr[dummy_row]
     indices[first] = right_col
     data[first] = right_w
-    by_right = np.argsort(right_at * left_row.size + left_at)  # by right, then left
+    # By right, then left; distinct keys, so stable (timsort, quicker on the runs a left's
+    # edges form) gives quicksort's order.
+    by_right = np.argsort(right_at * left_row.size + left_at, kind="stable")
     rank = np.arange(n_edges) - (np.cumsum(degree_r) - degree_r)[right_at[by_right]]
     at = first[right_at[by_right]] + 1 + rank
     indices[at] = dummy_edge_col[by_right]

@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
-from roadlink.association.associators.assignment.costs import Level, link_cost
+from roadlink.association.associators.assignment.costs import Level, affordable, link_cost
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import (
     GATE_AT_ONCE,
@@ -187,12 +187,15 @@ def build_tracks(
     if expected is not None and gate.every is not None:
         foreseen = Foreseen.of(s, model, params, gate.every, edges, anchor, expected)
     made: list[tuple[IntArray, IntArray]] = []  # the links made, while foreseen
+    # What an anchor can take off a link's cost at most (`costs.affordable`; inf: unknown).
+    most_bonus = 0.0 if anchor is None else float(anchor.bonus.max(initial=0.0))
+    most_bonus = most_bonus if np.isfinite(most_bonus) else np.inf
     for q in range(n_sensors):
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
             if foreseen is None:
                 linked_b = _extend_tracks(
-                    s, model, params, gate, edges, q, track, tail, level, anchor
+                    s, model, params, gate, edges, q, track, tail, level, (anchor, most_bonus)
                 )
             else:
                 pairs, cost = foreseen.at(q)
@@ -280,13 +283,18 @@ def _extend_tracks(
     track: IntArray,
     tail: IntArray,
     level: TrackLevel,
-    anchor: Anchors | None,
+    anchors: tuple[Anchors | None, float],
 ) -> IntArray:
     """Link the open tracks (those whose last detection lies within `max_skip` missed sensors)
     to sensor q's detections, one to one at least cost; the detections linked. A link pays for
-    the window's edges (`edges.WindowEdges`)."""
+    the window's edges (`edges.WindowEdges`); an anchored one costs its bonus less (`anchors`:
+    the anchors, and their largest bonus)."""
+    anchor, most_bonus = anchors
     open_tails = tail[s.sensor[tail] >= q - 1 - params.max_skip]
     pairs = gate.pairs(open_tails, q)
+    if pairs.a.size:
+        # Links that cost at least the gate whatever their other terms: the matching drops them.
+        pairs = affordable(params, model, pairs, s, most_bonus)
     if not pairs.a.size:
         return np.zeros(0, dtype=np.int64)
     a, b = pairs.a, pairs.b
