@@ -6,16 +6,16 @@ from __future__ import annotations
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, timedelta
+from datetime import timedelta
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import orjson
-from sqlalchemy import case, func, insert, or_, select, update
+from sqlalchemy import bindparam, case, func, insert, or_, select, update
 from sqlalchemy.orm import Session
 
-from roadlink.db.drivers import driver_of
+from roadlink.db.drivers import Driver, driver_of, prebuilt
 from roadlink.db.models import LiveAssociation, LiveSettledDetection, LiveVehicle
 
 LIVE_CHANNEL = "roadlink_jobs"
@@ -143,7 +143,7 @@ def _due() -> Any:
     )
 
 
-def _free_for(worker_id: str, now: datetime) -> Any:
+def _free_for(worker_id: Any, now: Any) -> Any:
     return or_(
         LiveAssociation.lease_owner.is_(None),
         LiveAssociation.lease_owner == worker_id,
@@ -152,10 +152,17 @@ def _free_for(worker_id: str, now: datetime) -> Any:
 
 
 def has_live_step(session: Session, *, worker_id: str) -> bool:
-    """Whether a live association has a step due that this worker may take (a read)."""
-    now = driver_of(session).clock()
-    query = select(LiveAssociation.deployment_id).where(_due(), _free_for(worker_id, now))
-    return session.execute(query.limit(1)).first() is not None
+    """Whether a live association has a step due that this worker may take (a read; built once,
+    as an idle worker asks it at every wake-up)."""
+    query, params = prebuilt(session, "live-due", _build_live_due)
+    return (
+        session.connection().execute(query, params | {"worker_id": worker_id}).first() is not None
+    )
+
+
+def _build_live_due(driver: Driver, now: Any, bound: bool) -> Any:
+    free = _free_for(bindparam("worker_id", type_=LiveAssociation.lease_owner.type), now)
+    return select(LiveAssociation.deployment_id).where(_due(), free).limit(1)
 
 
 @dataclass(frozen=True)

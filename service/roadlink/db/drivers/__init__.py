@@ -16,16 +16,18 @@ A driver owns what differs between SQLite and PostgreSQL:
 from __future__ import annotations
 
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
+from datetime import datetime
 from typing import Any, Protocol, TypeVar
 
-from sqlalchemy import Connection, Engine, Select, make_url
+from sqlalchemy import Connection, Engine, Select, bindparam, make_url
 from sqlalchemy.orm import Session
 
 from roadlink.db.drivers.backup_advice import BackupAdvice as BackupAdvice
 from roadlink.db.drivers.postgres import PostgresDriver
 from roadlink.db.drivers.sqlite import SqliteDriver
+from roadlink.db.models import UTCDateTime
 
 Query = TypeVar("Query", bound=Select[Any])
 
@@ -110,3 +112,33 @@ def driver_of(session: Session) -> Driver:
         driver = driver_for(engine.url.render_as_string(hide_password=False))
         _engine_drivers[engine] = driver
     return driver
+
+
+_prebuilt: dict[tuple[str, str, bool], Any] = {}
+
+
+def prebuilt(
+    session: Session,
+    name: str,
+    build: Callable[[Driver, Any, bool], Any],
+    *,
+    now: datetime | None = None,
+) -> tuple[Any, dict[str, Any]]:
+    """The statement `build(driver, clock, bound)` makes, built once per driver and kind of clock
+    (at its first use, under `name`), and the parameters of its clock.
+
+    For the statements a small job's path runs each time (is one due, claim it, finish it):
+    building and keying an ORM statement anew cost a worker more CPU than the database did (a
+    claim 0.69 ms against 0.19 ms prebuilt, in process). The clock is the driver's: on SQLite a
+    time, passed as the parameter `now` (`bound` is True: `clock` is that parameter); on
+    PostgreSQL the database's SQL expression, written into the statement (`bound` False). A
+    caller's own `now` (tests) is bound on either."""
+    driver = driver_of(session)
+    clock = driver.clock() if now is None else now
+    bound = isinstance(clock, datetime)
+    key = (name, driver.name, bound)
+    statement = _prebuilt.get(key)
+    if statement is None:
+        at = bindparam("now", type_=UTCDateTime()) if bound else clock
+        statement = _prebuilt[key] = build(driver, at, bound)
+    return statement, ({"now": clock} if bound else {})

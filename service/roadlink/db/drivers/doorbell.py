@@ -13,6 +13,7 @@ the next ring that finds nobody listening on it.
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import logging
 import os
@@ -43,11 +44,18 @@ def sqlite_file(database_url: str) -> Path | None:
 def channel_directory(database_url: str, channel: str) -> Path | None:
     """Where the listeners of `channel` for this database bind their sockets (None: no
     doorbell for this database). Kept short: a socket path has at most 107 bytes."""
+    # Worked out once per URL (every commit that notifies rings): a relative path names another
+    # file in another working directory, hence the directory in the key.
+    return _channel_directory(database_url, channel, os.getcwd(), tempfile.gettempdir())
+
+
+@functools.lru_cache(maxsize=64)
+def _channel_directory(database_url: str, channel: str, cwd: str, tmp: str) -> Path | None:
     path = sqlite_file(database_url)
     if path is None:
         return None
     digest = hashlib.sha256(str(path).encode()).hexdigest()[:16]
-    return Path(tempfile.gettempdir()) / f"roadlink-{digest}" / channel
+    return Path(tmp) / f"roadlink-{digest}" / channel
 
 
 def ring(database_url: str, channel: str, message: bytes = b"") -> None:
