@@ -10,14 +10,17 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from roadlink.settings import Settings
 
+# The two that only read the app's state are coroutines: FastAPI runs a plain function dependency
+# in its thread pool, a hop (and on a busy host a wait for a core) per request for an attribute.
 
-def get_settings(request: Request) -> Settings:
+
+async def get_settings(request: Request) -> Settings:
     """The app's settings."""
     settings: Settings = request.app.state.settings
     return settings
 
 
-def get_session_factory(request: Request) -> sessionmaker[Session]:
+async def get_session_factory(request: Request) -> sessionmaker[Session]:
     """The app's session factory (for handlers that run several transactions)."""
     factory: sessionmaker[Session] = request.app.state.sessions
     return factory
@@ -26,7 +29,8 @@ def get_session_factory(request: Request) -> sessionmaker[Session]:
 def get_session(request: Request) -> Iterator[Session]:
     """A session for one request. Handlers that write commit before they answer; anything left
     uncommitted (a handler that raised) is rolled back, so a rejected request leaves no trace."""
-    with get_session_factory(request)() as session:
+    factory: sessionmaker[Session] = request.app.state.sessions
+    with factory() as session:
         yield session
 
 

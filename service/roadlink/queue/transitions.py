@@ -98,6 +98,15 @@ def enqueue_job(
         max_attempts=max_attempts,
         # The request this is done for, if any: the worker logs the job under its id.
         request_id=current_request_id(),
+        # Set, though NULL, so that the new row is whole in the session: a response that shows
+        # the job (a batch's with `associate`) then reads nothing back before its commit.
+        lease_owner=None,
+        lease_expires_at=None,
+        error=None,
+        started_at=None,
+        finished_at=None,
+        duration_seconds=None,
+        n_detections=None,
     )
     # Runnable from the clock claims compare with (on PostgreSQL the database's, not this host's).
     job.created_at = job.run_after = driver_of(session).clock()
