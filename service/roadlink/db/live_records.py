@@ -7,12 +7,12 @@ import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import timedelta
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
 import orjson
-from sqlalchemy import bindparam, case, func, insert, or_, select, update
+from sqlalchemy import Table, bindparam, case, func, insert, or_, select, update
 from sqlalchemy.orm import Session
 
 from roadlink.db.drivers import Driver, driver_of, prebuilt
@@ -80,21 +80,20 @@ def note_batch(
     the next step reads (`floor - lateness`) are counted late now, since no step will see them
     (offline jobs still do). False when no live association runs."""
 
-    def at_least(column: Any, value: float) -> Any:
-        return case((or_(column.is_(None), column < value), value), else_=column)
-
-    statement = (
-        update(LiveAssociation)
-        .where(LiveAssociation.deployment_id == deployment_id, LiveAssociation.active.is_(True))
-        .values(
-            data_clock=at_least(LiveAssociation.data_clock, float(timestamps.max())),
-            road_end=at_least(LiveAssociation.road_end, last_position),
-            received=LiveAssociation.received + 1,
+    # Built once: every batch asks, and most deployments run no live association.
+    statement, _ = prebuilt(session, "note-batch", _build_note_batch)
+    row = (
+        session.connection()
+        .execute(
+            statement,
+            {
+                "deployment": deployment_id,
+                "newest_timestamp": float(timestamps.max()),
+                "last_position": float(last_position),
+            },
         )
-        .returning(LiveAssociation.floor, LiveAssociation.lateness)
-        .execution_options(synchronize_session=False)
+        .first()
     )
-    row = session.execute(statement).first()
     if row is None:
         return False
     floor, lateness = row
@@ -148,6 +147,26 @@ def _free_for(worker_id: Any, now: Any) -> Any:
         LiveAssociation.lease_owner.is_(None),
         LiveAssociation.lease_owner == worker_id,
         LiveAssociation.lease_expires_at < now,
+    )
+
+
+def _build_note_batch(driver: Driver, now: Any, bound: bool) -> Any:
+    table = cast(Table, LiveAssociation.__table__)
+    live = table.c
+
+    def at_least(column: Any, name: str) -> Any:
+        value = bindparam(name, type_=column.type)
+        return case((or_(column.is_(None), column < value), value), else_=column)
+
+    return (
+        update(table)
+        .where(live.deployment_id == bindparam("deployment"), live.active.is_(True))
+        .values(
+            data_clock=at_least(live.data_clock, "newest_timestamp"),
+            road_end=at_least(live.road_end, "last_position"),
+            received=live.received + 1,
+        )
+        .returning(live.floor, live.lateness)
     )
 
 
