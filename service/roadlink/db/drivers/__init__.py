@@ -45,6 +45,11 @@ class Listener(Protocol):
         seconds passed without any. PostgreSQL: raises when the connection fails (it is
         reopened at the next wait)."""
 
+    def pass_on(self, payloads: Sequence[str]) -> None:
+        """Hand news this listener took and did not act on to another listener of its channel,
+        where a notification wakes one of several (SQLite's doorbell, `listen(...,
+        one_of_many=True)`); a no-op where every listener hears every notification."""
+
     def close(self) -> None:
         """Stop listening and release what the listener holds."""
 
@@ -77,8 +82,9 @@ class Driver(Protocol):
     def notify(self, session: Session, channel: str, payloads: Sequence[str]) -> None:
         """Tell the listeners of `channel` each payload when this transaction commits."""
 
-    def listen(self, channel: str) -> Listener:
-        """A listener on `channel` of this database."""
+    def listen(self, channel: str, *, one_of_many: bool = False) -> Listener:
+        """A listener on `channel` of this database; `one_of_many`: one such listener is
+        enough for a notification (idle workers), where the database can wake just one."""
 
     rebuilds_tables: bool
     """Whether Alembic alters a table by rebuilding it (its batch mode)."""
