@@ -88,6 +88,12 @@ class FinishedJobs:
         """True when every finish will be heard (PostgreSQL, listener connected)."""
         return self._listener is not None and self._listener.hears_everything
 
+    @property
+    def rung(self) -> bool:
+        """True when a finish in any process reaches this one, though one may be lost (SQLite's
+        doorbell), or is sure to (`listening`)."""
+        return self._listener is not None and self._listener.hears_others
+
     def start(self) -> None:
         """Start listening."""
         if self._thread is not None:

@@ -40,6 +40,11 @@ class Listener(Protocol):
         """True while no notification can be missed (PostgreSQL, connected); else a listener
         may miss some, and its user polls as well."""
 
+    @property
+    def hears_others(self) -> bool:
+        """True while notifications from other processes reach it, though one may be lost
+        (SQLite's doorbell), or all of them (`hears_everything`)."""
+
     def wait(self, timeout: float) -> list[str] | None:
         """The payloads heard (possibly none: a wake-up without news), or None when `timeout`
         seconds passed without any. PostgreSQL: raises when the connection fails (it is

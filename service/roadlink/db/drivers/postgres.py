@@ -102,6 +102,10 @@ class PostgresListener:
     def hears_everything(self) -> bool:
         return self._connection is not None and not self._connection.closed
 
+    @property
+    def hears_others(self) -> bool:
+        return self.hears_everything
+
     def wait(self, timeout: float) -> list[str] | None:
         try:
             connection = self._connect()

@@ -170,6 +170,11 @@ class SqliteListener:
 
     hears_everything = False  # a ring may be lost
 
+    @property
+    def hears_others(self) -> bool:
+        """Whether other processes' news rings it (an in-memory database has no doorbell)."""
+        return self._doorbell is not None
+
     def __init__(self, database_url: str, channel: str, *, one_of_many: bool = False) -> None:
         self._database_url = database_url
         self._channel = channel
