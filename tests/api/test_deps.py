@@ -54,3 +54,22 @@ def test_a_handler_that_raises_leaves_no_trace_and_one_that_commits_keeps_its_wr
     assert client.post("/deployments/lost", params={"commit": False}).status_code == 500
     assert client.post("/deployments/kept", params={"commit": True}).status_code == 200
     assert names(engine) == ["kept"]
+
+
+def test_every_requests_session_gives_its_connection_back(
+    engine: Engine, settings: Settings
+) -> None:
+    """Whether the handler committed, raised after writing, or only read (its transaction still
+    open when it returns), the session is closed and its connection back in the pool."""
+    app = app_on(engine, settings)
+
+    @app.get("/count")
+    def count(session: SessionDep) -> int:
+        return len(list(session.scalars(select(Deployment.id))))
+
+    client = TestClient(app, raise_server_exceptions=False)
+    before = engine.pool.checkedout()  # type: ignore[attr-defined]
+    assert client.post("/deployments/one", params={"commit": True}).status_code == 200
+    assert client.post("/deployments/two", params={"commit": False}).status_code == 500
+    assert client.get("/count").status_code == 200
+    assert engine.pool.checkedout() == before  # type: ignore[attr-defined]

@@ -191,6 +191,37 @@ def test_an_idle_worker_wakes_for_a_new_job(
     assert not runner.is_alive()
 
 
+def test_a_worker_woken_for_several_jobs_takes_one_and_passes_on_the_others(
+    worker: Worker, sessions: sessionmaker[Session], enqueue: EnqueueJob
+) -> None:
+    """On SQLite a ring wakes one idle worker: it hands what else the ring named to another
+    before it runs the job it took."""
+    jobs: list[uuid.UUID] = []
+    passed: list[list[str]] = []
+    states: list[list[str]] = []
+
+    class Wakeup:
+        def wait(self, timeout: float) -> list[str]:
+            if not jobs:  # the first wait: two jobs come, and are heard of together
+                jobs.extend([enqueue(), enqueue()])
+                return [str(j) for j in jobs] + [""]
+            worker.stopping.set()
+            return []
+
+        def pass_on(self, news: list[str]) -> None:
+            passed.append(news)
+            states.append([_job(sessions, j).state for j in jobs])
+
+        def close(self) -> None:
+            pass
+
+    worker.run(Wakeup())
+    # Passed on once the first is claimed, before it runs; no other worker took the second, so
+    # this one ran it next (with nothing heard to pass on).
+    assert (passed, states) == ([[str(jobs[1]), ""]], [["running", "queued"]])
+    assert [_job(sessions, j).state for j in jobs] == ["succeeded", "succeeded"]
+
+
 @pytest.mark.parametrize("report_progress", [True, False], ids=["reporting", "stuck"])
 def test_a_job_past_its_time_limit_fails_and_the_worker_takes_the_next(
     settings: Settings,

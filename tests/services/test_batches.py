@@ -44,6 +44,32 @@ def test_a_batch_asking_for_association_is_stored_with_its_job(
     assert batch.n_detections == len(paper_batch) and batch.source == "json"
 
 
+def test_the_answer_shows_the_enqueued_job_without_reading_it_back(
+    engine: Engine, settings: Settings, paper_batch: Detections
+) -> None:
+    """The session holds a flushed row weakly: the job a batch enqueued is kept with the batch, so
+    the POST's answer reads nothing more before its commit."""
+    from sqlalchemy import event
+
+    deployment_id = _deployment(engine)
+    statements: list[str] = []
+
+    def record(*args: object) -> None:
+        statements.append(str(args[2]))
+
+    with make_session_factory(engine).begin() as session:
+        parsed = ParsedBatch(paper_batch, "json", Associate("kmeans", {"n_targets": 10}))
+        batch = store_batch(session, settings=settings, deployment_id=deployment_id, batch=parsed)
+        event.listen(engine, "before_cursor_execute", record)
+        try:
+            job = batch_job(session, batch)
+            assert job is not None and job.id == batch.job_id
+            assert (job.state, job.lease_owner, job.finished_at) == ("queued", None, None)
+        finally:
+            event.remove(engine, "before_cursor_execute", record)
+    assert statements == []
+
+
 def test_a_batch_without_association_has_no_job(
     engine: Engine, settings: Settings, paper_batch: Detections
 ) -> None:

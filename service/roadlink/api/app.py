@@ -23,7 +23,7 @@ from roadlink.api.errors import (
 )
 from roadlink.api.expired_idempotency_keys import forgetting_expired_keys
 from roadlink.api.jobresults import JobResultCache
-from roadlink.api.prometheus import ApiMetrics
+from roadlink.api.prometheus import ApiMetrics, RequestMetrics
 from roadlink.api.ratelimit import TokenBuckets
 from roadlink.api.requestids import HEADER, RequestIdMiddleware
 from roadlink.api.routers import (
@@ -104,7 +104,7 @@ def create_app(settings: Settings | None = None, *, engine: Engine | None = None
 
     install_error_handlers(app)
 
-    app.middleware("http")(app.state.metrics.middleware)
+    app.add_middleware(RequestMetrics, metrics=app.state.metrics)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
     app.add_middleware(ProblemsForEveryError)
     # Added last: the outermost layer, so that every answer (a problem included) has the id.

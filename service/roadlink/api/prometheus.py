@@ -5,14 +5,13 @@ and workers there are, on whichever hosts."""
 from __future__ import annotations
 
 import time
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Iterator
 
 from prometheus_client import CollectorRegistry, Counter, Histogram
 from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
 from sqlalchemy.orm import Session, sessionmaker
-from starlette.requests import Request
-from starlette.responses import Response
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from roadlink.db.repository import count_jobs_by_state, job_duration_histogram
 from roadlink.db.worker_heartbeats import heartbeats
@@ -84,24 +83,45 @@ class ApiMetrics:
         )
         self.registry.register(QueueCollector(sessions, lease_seconds))
 
-    async def middleware(
-        self, request: Request, call_next: Callable[[Request], Awaitable[Response]]
-    ) -> Response:
-        """Count and time every request, labelled by its route template (not its path, which
-        would make a label per id)."""
+
+class RequestMetrics:
+    """Counts and times every request, labelled by its route template (not its path, which
+    would make a label per id), once its response starts (or as a 500 when none does).
+
+    A plain ASGI middleware: as `@app.middleware("http")` (Starlette's BaseHTTPMiddleware) it
+    cost every request a task and a stream of its own."""
+
+    def __init__(self, app: ASGIApp, metrics: ApiMetrics) -> None:
+        self.app = app
+        self.metrics = metrics
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
         started = time.perf_counter()
-        status = 500
+        counted = False
+
+        def count(status: int) -> None:
+            nonlocal counted
+            counted = True
+            method, route = scope["method"], _route_template(scope)
+            self.metrics.requests.labels(method, route, str(status)).inc()
+            self.metrics.latency.labels(method, route).observe(time.perf_counter() - started)
+
+        async def send_counted(message: Message) -> None:
+            if message["type"] == "http.response.start" and not counted:
+                count(message["status"])
+            await send(message)
+
         try:
-            response = await call_next(request)
-            status = response.status_code
-            return response
+            await self.app(scope, receive, send_counted)
         finally:
-            route = _route_template(request)
-            self.requests.labels(request.method, route, str(status)).inc()
-            self.latency.labels(request.method, route).observe(time.perf_counter() - started)
+            if not counted:
+                count(500)
 
 
-def _route_template(request: Request) -> str:
+def _route_template(scope: Scope) -> str:
     # The router records the route it matched in the (shared) scope.
-    route = request.scope.get("route")
+    route = scope.get("route")
     return str(getattr(route, "path_format", None) or "unmatched")

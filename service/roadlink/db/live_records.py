@@ -6,16 +6,16 @@ from __future__ import annotations
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, timedelta
-from typing import Any
+from datetime import timedelta
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
 import orjson
-from sqlalchemy import case, func, insert, or_, select, update
+from sqlalchemy import Table, bindparam, case, func, insert, or_, select, update
 from sqlalchemy.orm import Session
 
-from roadlink.db.drivers import driver_of
+from roadlink.db.drivers import Driver, driver_of, prebuilt
 from roadlink.db.models import LiveAssociation, LiveSettledDetection, LiveVehicle
 
 LIVE_CHANNEL = "roadlink_jobs"
@@ -80,21 +80,20 @@ def note_batch(
     the next step reads (`floor - lateness`) are counted late now, since no step will see them
     (offline jobs still do). False when no live association runs."""
 
-    def at_least(column: Any, value: float) -> Any:
-        return case((or_(column.is_(None), column < value), value), else_=column)
-
-    statement = (
-        update(LiveAssociation)
-        .where(LiveAssociation.deployment_id == deployment_id, LiveAssociation.active.is_(True))
-        .values(
-            data_clock=at_least(LiveAssociation.data_clock, float(timestamps.max())),
-            road_end=at_least(LiveAssociation.road_end, last_position),
-            received=LiveAssociation.received + 1,
+    # Built once: every batch asks, and most deployments run no live association.
+    statement, _ = prebuilt(session, "note-batch", _build_note_batch)
+    row = (
+        session.connection()
+        .execute(
+            statement,
+            {
+                "deployment": deployment_id,
+                "newest_timestamp": float(timestamps.max()),
+                "last_position": float(last_position),
+            },
         )
-        .returning(LiveAssociation.floor, LiveAssociation.lateness)
-        .execution_options(synchronize_session=False)
+        .first()
     )
-    row = session.execute(statement).first()
     if row is None:
         return False
     floor, lateness = row
@@ -143,7 +142,7 @@ def _due() -> Any:
     )
 
 
-def _free_for(worker_id: str, now: datetime) -> Any:
+def _free_for(worker_id: Any, now: Any) -> Any:
     return or_(
         LiveAssociation.lease_owner.is_(None),
         LiveAssociation.lease_owner == worker_id,
@@ -151,11 +150,38 @@ def _free_for(worker_id: str, now: datetime) -> Any:
     )
 
 
+def _build_note_batch(driver: Driver, now: Any, bound: bool) -> Any:
+    table = cast(Table, LiveAssociation.__table__)
+    live = table.c
+
+    def at_least(column: Any, name: str) -> Any:
+        value = bindparam(name, type_=column.type)
+        return case((or_(column.is_(None), column < value), value), else_=column)
+
+    return (
+        update(table)
+        .where(live.deployment_id == bindparam("deployment"), live.active.is_(True))
+        .values(
+            data_clock=at_least(live.data_clock, "newest_timestamp"),
+            road_end=at_least(live.road_end, "last_position"),
+            received=live.received + 1,
+        )
+        .returning(live.floor, live.lateness)
+    )
+
+
 def has_live_step(session: Session, *, worker_id: str) -> bool:
-    """Whether a live association has a step due that this worker may take (a read)."""
-    now = driver_of(session).clock()
-    query = select(LiveAssociation.deployment_id).where(_due(), _free_for(worker_id, now))
-    return session.execute(query.limit(1)).first() is not None
+    """Whether a live association has a step due that this worker may take (a read; built once,
+    as an idle worker asks it at every wake-up)."""
+    query, params = prebuilt(session, "live-due", _build_live_due)
+    return (
+        session.connection().execute(query, params | {"worker_id": worker_id}).first() is not None
+    )
+
+
+def _build_live_due(driver: Driver, now: Any, bound: bool) -> Any:
+    free = _free_for(bindparam("worker_id", type_=LiveAssociation.lease_owner.type), now)
+    return select(LiveAssociation.deployment_id).where(_due(), free).limit(1)
 
 
 @dataclass(frozen=True)

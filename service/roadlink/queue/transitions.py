@@ -16,14 +16,14 @@ import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from typing import Any
+from typing import Any, cast
 
-from sqlalchemy import select, update
+from sqlalchemy import Interval, Table, bindparam, insert, select, update
 from sqlalchemy.orm import Session
 
 from roadlink.association.result import AssociationResult
 from roadlink.association.result_text import result_json_compact
-from roadlink.db.drivers import driver_of
+from roadlink.db.drivers import Driver, driver_of, prebuilt
 from roadlink.db.json_columns import Selection
 from roadlink.db.models import Job, JobResult, JobState
 from roadlink.logs import current_request_id
@@ -42,6 +42,10 @@ def _clock(session: Session, now: datetime | None) -> Any:
     """The time a transition is stamped with: `now` when the caller gives one (tests), else the
     driver's clock (the database's on PostgreSQL, one for every host; this host's on SQLite)."""
     return driver_of(session).clock() if now is None else now
+
+
+_JOB = cast(Table, Job.__table__)
+_RESULT = cast(Table, JobResult.__table__)
 
 
 def _announce_runnable(session: Session, job_id: uuid.UUID | None) -> None:
@@ -94,6 +98,15 @@ def enqueue_job(
         max_attempts=max_attempts,
         # The request this is done for, if any: the worker logs the job under its id.
         request_id=current_request_id(),
+        # Set, though NULL, so that the new row is whole in the session: a response that shows
+        # the job (a batch's with `associate`) then reads nothing back before its commit.
+        lease_owner=None,
+        lease_expires_at=None,
+        error=None,
+        started_at=None,
+        finished_at=None,
+        duration_seconds=None,
+        n_detections=None,
     )
     # Runnable from the clock claims compare with (on PostgreSQL the database's, not this host's).
     job.created_at = job.run_after = driver_of(session).clock()
@@ -105,9 +118,14 @@ def enqueue_job(
 
 def has_runnable_job(session: Session, *, now: datetime | None = None) -> bool:
     """Whether a queued job is due: a read, so idle workers polling SQLite take no write lock."""
-    now = _clock(session, now)
-    query = select(Job.id).where(Job.state == JobState.QUEUED, Job.run_after <= now).limit(1)
-    return session.execute(query).first() is not None
+    query, params = prebuilt(session, "due", _build_due, now=now)
+    return session.connection().execute(query, params).first() is not None
+
+
+def _build_due(driver: Driver, now: Any, bound: bool) -> Any:
+    return (
+        select(_JOB.c.id).where(_JOB.c.state == JobState.QUEUED, _JOB.c.run_after <= now).limit(1)
+    )
 
 
 def claim_next_job(
@@ -123,38 +141,50 @@ def claim_next_job(
     once per candidate row, and with SKIP LOCKED each run finds another job, so one claim
     would take them all (the `=` form is evaluated once).
     """
-    now = _clock(session, now)
-    candidate = driver_of(session).lock_for_claim(
-        select(Job.id)
-        .where(Job.state == JobState.QUEUED, Job.run_after <= now)
-        .order_by(Job.run_after, Job.created_at)
+    statement, params = prebuilt(session, "claim", _build_claim, now=now)
+    lease = timedelta(seconds=lease_seconds)
+    params |= {"worker_id": worker_id}
+    params |= {"expires": params["now"] + lease} if "now" in params else {"lease": lease}
+    row = session.connection().execute(statement, params).first()
+    return None if row is None else ClaimedJob(*row)
+
+
+def _build_claim(driver: Driver, now: Any, bound: bool) -> Any:
+    job = _JOB.c
+    candidate = driver.lock_for_claim(
+        select(job.id)
+        .where(job.state == JobState.QUEUED, job.run_after <= now)
+        .order_by(job.run_after, job.created_at)
         .limit(1)
     )
-    statement = (
-        update(Job)
-        .where(Job.id == candidate.scalar_subquery(), Job.state == JobState.QUEUED)
+    # A bound clock's expiry is worked out here; the database's clock adds the lease itself.
+    expires = (
+        bindparam("expires", type_=job.lease_expires_at.type)
+        if bound
+        else now + bindparam("lease", type_=Interval())
+    )
+    return (
+        update(_JOB)
+        .where(job.id == candidate.scalar_subquery(), job.state == JobState.QUEUED)
         .values(
             state=JobState.RUNNING,
-            lease_owner=worker_id,
-            lease_expires_at=now + timedelta(seconds=lease_seconds),
-            attempts=Job.attempts + 1,
+            lease_owner=bindparam("worker_id"),
+            lease_expires_at=expires,
+            attempts=job.attempts + 1,
             started_at=now,
             progress=0.0,
         )
         .returning(
-            Job.id,
-            Job.deployment_id,
-            Job.selection,
-            Job.associator,
-            Job.params,
-            Job.attempts,
-            Job.max_attempts,
-            Job.request_id,
+            job.id,
+            job.deployment_id,
+            job.selection,
+            job.associator,
+            job.params,
+            job.attempts,
+            job.max_attempts,
+            job.request_id,
         )
-        .execution_options(synchronize_session=False)
     )
-    row = session.execute(statement).first()
-    return None if row is None else ClaimedJob(*row)
 
 
 def _running_as(job_id: uuid.UUID, worker_id: str) -> Any:
@@ -191,37 +221,55 @@ def complete_job(
     now: datetime | None = None,
 ) -> bool:
     """Mark the job succeeded and store its result, both or neither; False if not ours any more."""
-    now = _clock(session, now)
-    statement = (
-        update(Job)
-        .where(_running_as(job_id, worker_id))
+    statement, params = prebuilt(session, "succeed", _build_succeed, now=now)
+    params |= {"job_id": job_id, "worker_id": worker_id}
+    connection = session.connection()
+    finished = params | {"duration": duration_seconds, "n_detections": len(result.detections)}
+    if connection.execute(statement, finished).rowcount != 1:
+        return False
+    statement, _ = prebuilt(session, "result", _build_result, now=now)
+    stored = params | {
+        # orjson.dumps(result.to_dict()), the same text, without a dict per detection.
+        "result_json": result_json_compact(result),
+        "matrix_csv": result.to_matrix_csv(),
+        "accuracy": None if result.metrics is None else result.metrics.accuracy,
+    }
+    connection.execute(statement, stored)
+    _announce_finished(session, [job_id])
+    return True
+
+
+def _build_succeed(driver: Driver, now: Any, bound: bool) -> Any:
+    job = _JOB.c
+    return (
+        update(_JOB)
+        .where(
+            job.id == bindparam("job_id"),
+            job.state == JobState.RUNNING,
+            job.lease_owner == bindparam("worker_id"),
+        )
         .values(
             state=JobState.SUCCEEDED,
             progress=1.0,
             finished_at=now,
-            duration_seconds=duration_seconds,
-            n_detections=len(result.detections),
+            duration_seconds=bindparam("duration", type_=job.duration_seconds.type),
+            n_detections=bindparam("n_detections", type_=job.n_detections.type),
             lease_owner=None,
             lease_expires_at=None,
             error=None,
         )
-        .execution_options(synchronize_session=False)
     )
-    if session.execute(statement).rowcount != 1:  # type: ignore[attr-defined]
-        return False
-    session.add(
-        JobResult(
-            job_id=job_id,
-            # orjson.dumps(result.to_dict()), the same text, without a dict per detection.
-            result_json=result_json_compact(result),
-            matrix_csv=result.to_matrix_csv(),
-            accuracy=None if result.metrics is None else result.metrics.accuracy,
-            created_at=now,
-        )
+
+
+def _build_result(driver: Driver, now: Any, bound: bool) -> Any:
+    result = _RESULT.c
+    return insert(_RESULT).values(
+        job_id=bindparam("job_id", type_=result.job_id.type),
+        result_json=bindparam("result_json", type_=result.result_json.type),
+        matrix_csv=bindparam("matrix_csv", type_=result.matrix_csv.type),
+        accuracy=bindparam("accuracy", type_=result.accuracy.type),
+        created_at=now,
     )
-    session.flush()
-    _announce_finished(session, [job_id])
-    return True
 
 
 def fail_job(

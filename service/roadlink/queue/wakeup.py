@@ -20,8 +20,13 @@ log = logging.getLogger(__name__)
 
 
 class Wakeup(Protocol):
-    def wait(self, timeout: float) -> None:
-        """Return when work may be waiting, or after `timeout` seconds at the latest."""
+    def wait(self, timeout: float) -> list[str]:
+        """Return when work may be waiting, or after `timeout` seconds at the latest; the news
+        heard (job ids, '' for news without one), if any."""
+
+    def pass_on(self, news: list[str]) -> None:
+        """Hand news heard and not acted on to another idle worker (where one is woken at a
+        time: SQLite's doorbell)."""
 
     def close(self) -> None:
         """Release what the wake-up holds (e.g. its connection)."""
@@ -36,20 +41,24 @@ class ListeningWakeup:
     def __init__(self, listener: Listener) -> None:
         self._listener = listener
 
-    def wait(self, timeout: float) -> None:
+    def wait(self, timeout: float) -> list[str]:
         try:
-            self._listener.wait(timeout)
+            return self._listener.wait(timeout) or []
         except Exception as exc:
             log.warning("LISTEN connection failed (%s); polling instead", exc)
             time.sleep(timeout)
+            return []
+
+    def pass_on(self, news: list[str]) -> None:
+        self._listener.pass_on(news)
 
     def close(self) -> None:
         self._listener.close()
 
 
 def make_wakeup(database_url: str) -> Wakeup:
-    """An idle worker's wake-up on this database."""
-    return ListeningWakeup(driver_for(database_url).listen(NOTIFY_CHANNEL))
+    """An idle worker's wake-up on this database: one idle worker is enough for a job."""
+    return ListeningWakeup(driver_for(database_url).listen(NOTIFY_CHANNEL, one_of_many=True))
 
 
 class FinishedJobs:
@@ -78,6 +87,12 @@ class FinishedJobs:
     def listening(self) -> bool:
         """True when every finish will be heard (PostgreSQL, listener connected)."""
         return self._listener is not None and self._listener.hears_everything
+
+    @property
+    def rung(self) -> bool:
+        """True when a finish in any process reaches this one, though one may be lost (SQLite's
+        doorbell), or is sure to (`listening`)."""
+        return self._listener is not None and self._listener.hears_others
 
     def start(self) -> None:
         """Start listening."""

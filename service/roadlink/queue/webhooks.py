@@ -16,10 +16,10 @@ from datetime import datetime, timedelta
 from typing import Any
 
 import orjson
-from sqlalchemy import Select, select, update
+from sqlalchemy import Select, bindparam, select, update
 from sqlalchemy.orm import Session
 
-from roadlink.db.drivers import driver_of
+from roadlink.db.drivers import Driver, driver_of, prebuilt
 from roadlink.db.live_records import vehicle_document
 from roadlink.db.models import Job, JobResult, LiveVehicle, Webhook, WebhookDelivery, utcnow
 
@@ -48,8 +48,13 @@ def record_job_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> int:
     ids = list(job_ids)
     if not ids:
         return 0
-    # The subscribers first, by one read: most deployments have none, and then the jobs need not
-    # be read back (a paper-size job's finish paid a flush and a load of its row for nothing).
+    # Whether any webhook subscribes first, by one read of a statement built once: most
+    # deployments have none, and then the jobs need not be read back (a paper-size job's finish
+    # paid a flush and a load of its row for nothing).
+    hooks, _ = prebuilt(session, "job-webhooks", _build_job_webhooks)
+    found = session.connection().execute(hooks, {"job_ids": ids}).scalars()
+    if not any(JOB_FINISHED in (types or ()) for types in found):
+        return 0
     deployments = select(Job.deployment_id).where(Job.id.in_(ids))
     subscribed = _subscribers(session, deployments, JOB_FINISHED)
     if not subscribed:
@@ -68,6 +73,12 @@ def record_job_finished(session: Session, job_ids: Iterable[uuid.UUID]) -> int:
         count += _add(session, subscribed, _event(JOB_FINISHED, job.deployment_id, data), now)
     session.flush()
     return count
+
+
+def _build_job_webhooks(driver: Driver, now: Any, bound: bool) -> Any:
+    """The event types of every webhook of the deployments of the jobs `job_ids`."""
+    jobs = select(Job.deployment_id).where(Job.id.in_(bindparam("job_ids", expanding=True)))
+    return select(Webhook.event_types).where(Webhook.deployment_id.in_(jobs))
 
 
 def record_vehicles_published(session: Session, vehicles: list[LiveVehicle]) -> int:

@@ -60,6 +60,9 @@ class Worker:
         self.stopping = threading.Event()
         self.associator_process = AssociatorProcess()
         self._last_rescue = 0.0
+        # What the last wake-up heard, until this worker takes work (then it passes on the rest).
+        self._news: list[str] = []
+        self._wakeup: Wakeup | None = None
         # The row for /metrics thrice a lease (live means beaten within a lease).
         self.liveness = WorkerLiveness(
             self.id,
@@ -71,7 +74,7 @@ class Worker:
 
     def run(self, wakeup: Wakeup | None = None) -> None:
         """Work until `stopping` is set."""
-        wakeup = wakeup or make_wakeup(self.settings.database_url)
+        wakeup = self._wakeup = wakeup or make_wakeup(self.settings.database_url)
         self.associator_process.start()  # so that the first job does not wait for it
         housekeeping = Housekeeping(self.settings, self.sessions, self.stopping)
         housekeeping.start()
@@ -80,7 +83,7 @@ class Worker:
             while not self.stopping.is_set():
                 self.liveness.beat()
                 if not self.run_once():
-                    wakeup.wait(self.settings.poll_seconds)
+                    self._news = wakeup.wait(self.settings.poll_seconds)
         finally:
             wakeup.close()
             self._release_live_leases()
@@ -101,6 +104,8 @@ class Worker:
         with self.sessions() as session:
             live_due = has_live_step(session, worker_id=self.id)
             job_due = None if live_due else has_runnable_job(session)
+        if live_due:
+            self._pass_on()
         stepped = live_due and self._live_step()
         return self._job_once(job_due) or stepped
 
@@ -146,8 +151,20 @@ class Worker:
             )
         if job is None:
             return False
+        self._pass_on(done=str(job.id))
         self.run_job(job)
         return True
+
+    def _pass_on(self, done: str | None = None) -> None:
+        """Taking work after a wake-up: hand what else the wake-up named (other jobs, or news
+        without an id) to another idle worker, as a ring wakes one of them (SQLite)."""
+        news, self._news = self._news, []
+        left = [n for n in news if n != done]
+        if left and self._wakeup is not None:
+            try:
+                self._wakeup.pass_on(left)
+            except Exception:  # a hint: the others poll anyway
+                log.exception("could not pass the news on")
 
     def _rescue_when_due(self) -> None:
         # Every worker rescues, so a crashed worker's jobs come back as long as one worker lives.

@@ -4,6 +4,7 @@ Idempotency-Key; and finding a batch's job."""
 from __future__ import annotations
 
 import uuid
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeVar
@@ -112,9 +113,21 @@ def store_batch(
         timestamps=batch.detections.timestamp,
         last_position=float(batch.detections.position.max()),
     )
+    if batch.associate is not None:
+        _enqueued[stored] = job
     return stored
+
+
+# The job `store_batch` enqueued, while its batch is held: the session keeps only a weak
+# reference to a flushed row, so the answer to the POST read the new job back otherwise.
+_enqueued: weakref.WeakKeyDictionary[Batch, Job] = weakref.WeakKeyDictionary()
 
 
 def batch_job(session: Session, batch: Batch) -> Job | None:
     """The job enqueued with the batch, if any."""
-    return None if batch.job_id is None else repository.get_job(session, job_id=batch.job_id)
+    if batch.job_id is None:
+        return None
+    enqueued = _enqueued.get(batch)
+    if enqueued is not None and enqueued.id == batch.job_id:
+        return enqueued
+    return repository.get_job(session, job_id=batch.job_id)

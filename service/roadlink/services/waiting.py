@@ -13,11 +13,16 @@ from roadlink.db.models import Job
 from roadlink.queue.wakeup import FinishedJobs
 from roadlink.services.problems import ServiceProblem
 
-# A waiting result request is woken by the job's finish notification (PostgreSQL, or a worker in
-# this process); it also re-reads the job, often at first and backing off to the maximum, which
-# is all it has when no notification can reach it (SQLite workers in other processes).
+# A waiting result request is woken by the job's finish notification (PostgreSQL, a worker in
+# this process, or SQLite's doorbell from a worker in another); it also re-reads the job, often
+# at first and backing off to the maximum, which is all it has when no notification can reach it
+# (SQLite without a doorbell).
 WAIT_FIRST_POLL_SECONDS = 0.02
 WAIT_MAX_POLL_SECONDS = 0.25
+# Rung by the doorbell, re-reading covers only a ring that was lost: every 250 ms from the start,
+# as an idle worker polls. (At 20 ms, the second read of a paper-size job's request came as the
+# job finished, a third of the time: a read for nothing on the API's cores at that moment.)
+WAIT_RUNG_POLL_SECONDS = 0.25
 # While notifications are heard, re-reading only covers one lost in a reconnection.
 WAIT_LISTENING_POLL_SECONDS = 2.0
 
@@ -38,7 +43,8 @@ async def wait_for_job(
     # Watched before the first read, so that a finish between the read and the wait is heard.
     finished = None if finished_jobs is None or wait <= 0 else finished_jobs.watch(job_id)
     try:
-        pause = WAIT_FIRST_POLL_SECONDS
+        rung = finished_jobs is not None and finished_jobs.rung
+        pause = WAIT_RUNG_POLL_SECONDS if rung else WAIT_FIRST_POLL_SECONDS
         while True:
             job = await read_job()
             if job is None:

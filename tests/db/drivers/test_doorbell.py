@@ -95,3 +95,69 @@ def test_a_channel_directory_others_may_write_is_not_used(database_url):
     finally:
         directory.chmod(0o700)
         listener.close()
+
+
+def _waiting(listener, heard):
+    """A thread in which `listener` waits, as an idle worker does, and keeps what it heard."""
+    import threading
+
+    thread = threading.Thread(target=lambda: heard.append(listener.wait(5.0)), daemon=True)
+    thread.start()
+    return thread
+
+
+def _idle_marks(database_url):
+    return sorted(doorbell.channel_directory(database_url, QUEUED).glob(f"*{doorbell.IDLE}"))
+
+
+def test_a_ring_wakes_one_idle_listener_of_many_and_every_other_listener(database_url):
+    """Idle workers: one is enough for a job, so one of those waiting is rung; a listener that
+    is not one of many (a result request's) hears every ring."""
+    many = [doorbell.listen(database_url, QUEUED, one_of_many=True) for _ in range(2)]
+    plain = doorbell.listen(database_url, QUEUED)
+    heard = [[], []]
+    try:
+        threads = [_waiting(listener, heard[k]) for k, listener in enumerate(many)]
+        deadline = time.monotonic() + 5
+        while len(_idle_marks(database_url)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(_idle_marks(database_url)) == 2  # both wait, marked idle
+        doorbell.ring(database_url, QUEUED, b"job-1")
+        assert plain.wait(5.0) == [b"job-1"]
+        time.sleep(0.2)
+        assert sorted(map(len, heard)) == [0, 1] and [[b"job-1"]] in heard
+        woken = 0 if heard[0] else 1
+        assert len(_idle_marks(database_url)) == 1  # the woken one is no longer idle
+        doorbell.ring(database_url, QUEUED, b"job-2")  # the other one
+        for thread in threads:
+            thread.join(5.0)
+        assert heard[1 - woken] == [[b"job-2"]]
+        assert _idle_marks(database_url) == []
+    finally:
+        for listener in [*many, plain]:
+            listener.close()
+
+
+def test_with_none_of_many_idle_every_one_is_rung(database_url):
+    """A worker busy with a job is not marked idle: when none is, all of them are rung (each
+    looks for work when its job ends anyway)."""
+    many = [doorbell.listen(database_url, QUEUED, one_of_many=True) for _ in range(2)]
+    try:
+        doorbell.ring(database_url, QUEUED, b"job-1")
+        assert [listener.wait(0.0) for listener in many] == [[b"job-1"], [b"job-1"]]
+    finally:
+        for listener in many:
+            listener.close()
+
+
+def test_an_idle_mark_left_by_a_dead_listener_is_cleared_and_the_ring_goes_on(database_url):
+    alive = doorbell.listen(database_url, QUEUED, one_of_many=True)
+    directory = doorbell.channel_directory(database_url, QUEUED)
+    (directory / f"999999-dead{doorbell.ONE_OF_MANY}.sock").touch()  # no one listens there
+    (directory / f"999999-dead{doorbell.ONE_OF_MANY}{doorbell.IDLE}").touch()
+    try:
+        doorbell.ring(database_url, QUEUED, b"job-1")
+        assert alive.wait(5.0) == [b"job-1"]
+        assert sorted(p.name for p in directory.iterdir()) == [alive.path.name]
+    finally:
+        alive.close()

@@ -52,3 +52,33 @@ def test_another_channel_hears_nothing(engine: Engine, database_url: str) -> Non
         assert other.wait(0.3) is None
     finally:
         other.close()
+
+
+def test_a_prebuilt_statement_is_built_once_per_driver_and_kind_of_clock(engine: Engine) -> None:
+    """Built at its first use and reused; the driver's clock is a parameter where it is a time
+    (SQLite), written into the statement where it is SQL (PostgreSQL); a caller's `now` is bound
+    on either, in a statement of its own."""
+    from datetime import UTC, datetime
+
+    from sqlalchemy import literal, select
+
+    from roadlink.db.drivers import prebuilt
+
+    built: list[bool] = []
+
+    def build(driver: object, clock: object, bound: bool) -> object:
+        built.append(bound)
+        return select(literal(1)).where(clock is not None)
+
+    name = f"test-{engine.dialect.name}-{id(built)}"
+    with Session(engine) as session:
+        first, params = prebuilt(session, name, build)
+        again, _ = prebuilt(session, name, build)
+        assert again is first
+        on_sqlite = engine.dialect.name == "sqlite"
+        assert ("now" in params) is on_sqlite
+        when = datetime(2026, 1, 2, tzinfo=UTC)
+        given, given_params = prebuilt(session, name, build, now=when)
+        assert given_params == {"now": when}
+        assert prebuilt(session, name, build, now=when)[0] is given
+    assert built == ([True] if on_sqlite else [False, True])

@@ -140,5 +140,14 @@ def test_an_in_memory_database_hears_this_process_only() -> None:
         listener.hear(["a"])
         assert listener.wait(5.0) == ["a"]
         assert not listener.hears_everything
+        assert not listener.hears_others  # no doorbell: its users poll often
+    finally:
+        listener.close()
+
+
+def test_a_database_file_hears_other_processes_by_its_doorbell(tmp_path: Path) -> None:
+    listener = SqliteListener(f"sqlite:///{tmp_path / 'x.db'}", "roadlink_test")
+    try:
+        assert listener.hears_others and not listener.hears_everything  # a ring may be lost
     finally:
         listener.close()

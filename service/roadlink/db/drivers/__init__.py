@@ -16,16 +16,18 @@ A driver owns what differs between SQLite and PostgreSQL:
 from __future__ import annotations
 
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
+from datetime import datetime
 from typing import Any, Protocol, TypeVar
 
-from sqlalchemy import Connection, Engine, Select, make_url
+from sqlalchemy import Connection, Engine, Select, bindparam, make_url
 from sqlalchemy.orm import Session
 
 from roadlink.db.drivers.backup_advice import BackupAdvice as BackupAdvice
 from roadlink.db.drivers.postgres import PostgresDriver
 from roadlink.db.drivers.sqlite import SqliteDriver
+from roadlink.db.models import UTCDateTime
 
 Query = TypeVar("Query", bound=Select[Any])
 
@@ -38,10 +40,20 @@ class Listener(Protocol):
         """True while no notification can be missed (PostgreSQL, connected); else a listener
         may miss some, and its user polls as well."""
 
+    @property
+    def hears_others(self) -> bool:
+        """True while notifications from other processes reach it, though one may be lost
+        (SQLite's doorbell), or all of them (`hears_everything`)."""
+
     def wait(self, timeout: float) -> list[str] | None:
         """The payloads heard (possibly none: a wake-up without news), or None when `timeout`
         seconds passed without any. PostgreSQL: raises when the connection fails (it is
         reopened at the next wait)."""
+
+    def pass_on(self, payloads: Sequence[str]) -> None:
+        """Hand news this listener took and did not act on to another listener of its channel,
+        where a notification wakes one of several (SQLite's doorbell, `listen(...,
+        one_of_many=True)`); a no-op where every listener hears every notification."""
 
     def close(self) -> None:
         """Stop listening and release what the listener holds."""
@@ -75,8 +87,9 @@ class Driver(Protocol):
     def notify(self, session: Session, channel: str, payloads: Sequence[str]) -> None:
         """Tell the listeners of `channel` each payload when this transaction commits."""
 
-    def listen(self, channel: str) -> Listener:
-        """A listener on `channel` of this database."""
+    def listen(self, channel: str, *, one_of_many: bool = False) -> Listener:
+        """A listener on `channel` of this database; `one_of_many`: one such listener is
+        enough for a notification (idle workers), where the database can wake just one."""
 
     rebuilds_tables: bool
     """Whether Alembic alters a table by rebuilding it (its batch mode)."""
@@ -110,3 +123,33 @@ def driver_of(session: Session) -> Driver:
         driver = driver_for(engine.url.render_as_string(hide_password=False))
         _engine_drivers[engine] = driver
     return driver
+
+
+_prebuilt: dict[tuple[str, str, bool], Any] = {}
+
+
+def prebuilt(
+    session: Session,
+    name: str,
+    build: Callable[[Driver, Any, bool], Any],
+    *,
+    now: datetime | None = None,
+) -> tuple[Any, dict[str, Any]]:
+    """The statement `build(driver, clock, bound)` makes, built once per driver and kind of clock
+    (at its first use, under `name`), and the parameters of its clock.
+
+    For the statements a small job's path runs each time (is one due, claim it, finish it):
+    building and keying an ORM statement anew cost a worker more CPU than the database did (a
+    claim 0.69 ms against 0.19 ms prebuilt, in process). The clock is the driver's: on SQLite a
+    time, passed as the parameter `now` (`bound` is True: `clock` is that parameter); on
+    PostgreSQL the database's SQL expression, written into the statement (`bound` False). A
+    caller's own `now` (tests) is bound on either."""
+    driver = driver_of(session)
+    clock = driver.clock() if now is None else now
+    bound = isinstance(clock, datetime)
+    key = (name, driver.name, bound)
+    statement = _prebuilt.get(key)
+    if statement is None:
+        at = bindparam("now", type_=UTCDateTime()) if bound else clock
+        statement = _prebuilt[key] = build(driver, at, bound)
+    return statement, ({"now": clock} if bound else {})

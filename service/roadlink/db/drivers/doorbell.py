@@ -8,11 +8,19 @@ A ring is a hint, never data: the listener re-reads the database, and keeps poll
 so a lost ring (a full socket buffer, a directory it may not write) only costs the poll interval
 it would have waited anyway. A socket left behind by a process that died is removed by
 the next ring that finds nobody listening on it.
+
+Listeners of which one is enough (idle workers: one job wants one of them) say so in their
+socket's name and mark themselves idle while they wait (a file beside the socket); a ring goes
+to one of them marked idle, or to every one of them when none is (and to every other listener
+of the channel, as before). (Every idle worker woke for every job, and all but one
+read the queue and often tried the claim for nothing, on the same cores as the one that ran it.)
+A listener woken so passes on what it took and did not do (`ring` again).
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import logging
 import os
@@ -43,11 +51,18 @@ def sqlite_file(database_url: str) -> Path | None:
 def channel_directory(database_url: str, channel: str) -> Path | None:
     """Where the listeners of `channel` for this database bind their sockets (None: no
     doorbell for this database). Kept short: a socket path has at most 107 bytes."""
+    # Worked out once per URL (every commit that notifies rings): a relative path names another
+    # file in another working directory, hence the directory in the key.
+    return _channel_directory(database_url, channel, os.getcwd(), tempfile.gettempdir())
+
+
+@functools.lru_cache(maxsize=64)
+def _channel_directory(database_url: str, channel: str, cwd: str, tmp: str) -> Path | None:
     path = sqlite_file(database_url)
     if path is None:
         return None
     digest = hashlib.sha256(str(path).encode()).hexdigest()[:16]
-    return Path(tempfile.gettempdir()) / f"roadlink-{digest}" / channel
+    return Path(tmp) / f"roadlink-{digest}" / channel
 
 
 def ring(database_url: str, channel: str, message: bytes = b"") -> None:
@@ -61,20 +76,41 @@ def ring(database_url: str, channel: str, message: bytes = b"") -> None:
         names = os.listdir(directory)
     except OSError:  # nobody has listened yet
         return
+    sockets = [name for name in names if name.endswith(".sock")]
+    idle = {name.removesuffix(IDLE) for name in names if name.endswith(IDLE)}
+    many = [name for name in sockets if name.endswith(ONE_OF_MANY + ".sock")]
     with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sender:
         sender.setblocking(False)
-        for name in names:
-            if not name.endswith(".sock"):
-                continue
-            path = directory / name
-            try:
-                sender.sendto(message[:MAX_DATAGRAM_BYTES], str(path))
-            except (ConnectionRefusedError, FileNotFoundError):
-                # Its process is gone: nobody will read this socket again.
-                with contextlib.suppress(OSError):
-                    path.unlink()
-            except OSError:  # its buffer is full (it is awake anyway), or not ours to write
-                continue
+        for name in sockets:  # every listener that is not one of many
+            if name not in many:
+                _send(sender, directory / name, message)
+        for name in many:  # one of many that is idle, if one takes it
+            if name.removesuffix(".sock") in idle and _send(sender, directory / name, message):
+                return
+        for name in many:  # else every one of them
+            _send(sender, directory / name, message)
+
+
+ONE_OF_MANY = ".one"
+"""Names the socket of a listener of which one is enough (`Listener(..., one_of_many=True)`)."""
+
+IDLE = ".idle"
+"""The suffix of the mark such a listener leaves beside its socket while it waits."""
+
+
+def _send(sender: socket.socket, path: Path, message: bytes) -> bool:
+    """Whether the listener at `path` was sent the message."""
+    try:
+        sender.sendto(message[:MAX_DATAGRAM_BYTES], str(path))
+        return True
+    except (ConnectionRefusedError, FileNotFoundError):
+        # Its process is gone: nobody will read this socket again.
+        for stale in (path, path.with_suffix(IDLE)):
+            with contextlib.suppress(OSError):
+                stale.unlink()
+    except OSError:  # its buffer is full (it is awake anyway), or not ours to write
+        pass
+    return False
 
 
 def _ours(directory: Path) -> bool:
@@ -85,13 +121,18 @@ def _ours(directory: Path) -> bool:
 
 
 class Listener:
-    """One process's socket on a channel; `wait` returns what rang it, or [] on a timeout."""
+    """One process's socket on a channel; `wait` returns what rang it, or [] on a timeout.
 
-    def __init__(self, database_url: str, channel: str) -> None:
+    `one_of_many`: one such listener is enough for a ring (it marks itself idle while it waits,
+    and a ring goes to one of those marked); the others are rung whatever the marks say."""
+
+    def __init__(self, database_url: str, channel: str, *, one_of_many: bool = False) -> None:
         directory = channel_directory(database_url, channel)
         if directory is None:
             raise ValueError(f"no doorbell for {database_url!r}: not a SQLite file")
-        self.path = directory / f"{os.getpid()}-{uuid.uuid4().hex[:8]}.sock"
+        kind = ONE_OF_MANY if one_of_many else ""
+        self.path = directory / f"{os.getpid()}-{uuid.uuid4().hex[:8]}{kind}.sock"
+        self._idle = self.path.with_suffix(IDLE) if one_of_many else None
         self._socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
             for attempt in range(2):
@@ -115,8 +156,24 @@ class Listener:
 
     def wait(self, timeout: float) -> list[bytes]:
         """Block until rung or `timeout` seconds pass; every message that was waiting."""
-        readable, _, _ = select.select([self._socket], [], [], max(timeout, 0.0))
+        marked = self._idle if timeout > 0 and self._mark_idle(self._idle) else None
+        try:
+            readable, _, _ = select.select([self._socket], [], [], max(timeout, 0.0))
+        finally:
+            if marked is not None:
+                with contextlib.suppress(OSError):
+                    marked.unlink()
         return self.drain() if readable else []
+
+    @staticmethod
+    def _mark_idle(path: Path | None) -> bool:
+        if path is None:
+            return False
+        try:
+            os.close(os.open(path, os.O_WRONLY | os.O_CREAT, 0o600))
+            return True
+        except OSError:  # unmarked, it is rung as every listener is: only less often alone
+            return False
 
     def drain(self) -> list[bytes]:
         """The messages waiting now, without blocking."""
@@ -133,20 +190,22 @@ class Listener:
         """Stop listening and remove the socket, and its directories once they are empty (so
         that temporary databases leave nothing behind)."""
         self._socket.close()
-        with contextlib.suppress(OSError):
-            self.path.unlink()
+        for path in (self.path, self._idle):
+            if path is not None:
+                with contextlib.suppress(OSError):
+                    path.unlink()
         with contextlib.suppress(OSError):  # another listener's socket is still there
             self.path.parent.rmdir()
             self.path.parent.parent.rmdir()
 
 
-def listen(database_url: str, channel: str) -> Listener | None:
-    """A listener on `channel`, or None when this database has no doorbell or the socket cannot
-    be made (the caller then polls, as it always may)."""
+def listen(database_url: str, channel: str, *, one_of_many: bool = False) -> Listener | None:
+    """A listener on `channel` (see `Listener` for `one_of_many`), or None when this database has
+    no doorbell or the socket cannot be made (the caller then polls, as it always may)."""
     if channel_directory(database_url, channel) is None:
         return None
     try:
-        return Listener(database_url, channel)
+        return Listener(database_url, channel, one_of_many=one_of_many)
     except OSError as exc:
         log.warning("cannot listen for %s jobs (%s); polling only", channel, exc)
         return None

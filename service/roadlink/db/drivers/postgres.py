@@ -70,7 +70,7 @@ class PostgresDriver:
                 {"channel": channel, "payload": payload},
             )
 
-    def listen(self, channel: str) -> PostgresListener:
+    def listen(self, channel: str, *, one_of_many: bool = False) -> PostgresListener:
         return PostgresListener(self._conninfo, channel)
 
     rebuilds_tables = False
@@ -102,6 +102,10 @@ class PostgresListener:
     def hears_everything(self) -> bool:
         return self._connection is not None and not self._connection.closed
 
+    @property
+    def hears_others(self) -> bool:
+        return self.hears_everything
+
     def wait(self, timeout: float) -> list[str] | None:
         try:
             connection = self._connect()
@@ -123,6 +127,9 @@ class PostgresListener:
                 raise
             self._connection = connection  # listening from now on
         return self._connection
+
+    def pass_on(self, payloads: Sequence[str]) -> None:
+        pass  # every listener heard the NOTIFY
 
     def close(self) -> None:
         if self._connection is not None:

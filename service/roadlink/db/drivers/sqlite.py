@@ -100,8 +100,8 @@ class SqliteDriver:
 
         after_commit(session, deliver)
 
-    def listen(self, channel: str) -> SqliteListener:
-        return SqliteListener(self._database_url, channel)
+    def listen(self, channel: str, *, one_of_many: bool = False) -> SqliteListener:
+        return SqliteListener(self._database_url, channel, one_of_many=one_of_many)
 
     # SQLite cannot ALTER most things; Alembic's batch mode recreates the table instead.
     rebuilds_tables = True
@@ -170,12 +170,18 @@ class SqliteListener:
 
     hears_everything = False  # a ring may be lost
 
-    def __init__(self, database_url: str, channel: str) -> None:
+    @property
+    def hears_others(self) -> bool:
+        """Whether other processes' news rings it (an in-memory database has no doorbell)."""
+        return self._doorbell is not None
+
+    def __init__(self, database_url: str, channel: str, *, one_of_many: bool = False) -> None:
+        self._database_url = database_url
         self._channel = channel
         self._heard = threading.Event()
         self._payloads: list[str] = []
         self._lock = threading.Lock()
-        self._doorbell = doorbell.listen(database_url, channel)
+        self._doorbell = doorbell.listen(database_url, channel, one_of_many=one_of_many)
         _local_listeners.add(channel, self)
 
     def hear(self, payloads: Sequence[str]) -> None:
@@ -208,6 +214,9 @@ class SqliteListener:
             payloads, self._payloads = self._payloads, []
             self._heard.clear()
             return payloads
+
+    def pass_on(self, payloads: Sequence[str]) -> None:
+        doorbell.ring(self._database_url, self._channel, "\n".join(payloads).encode())
 
     def close(self) -> None:
         _local_listeners.remove(self._channel, self)
