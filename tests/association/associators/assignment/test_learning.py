@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from roadlink.association import Detections
-from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment import AssignmentParams, learning
 from roadlink.association.associators.assignment.anchors import Anchors
 from roadlink.association.associators.assignment.learning import (
     best_skews,
@@ -84,3 +84,31 @@ def test_a_short_track_is_confident_where_lane_order_anchors_its_link():
     # An anchor the tracks did not follow makes nothing confident.
     apart = np.array([0, 0, 0, 1, 3, 2, 2, -1])
     assert confident_detections(apart, Anchors(predecessor, bonus)).tolist() == [0, 1, 2]
+
+
+def test_segments_learned_span_by_span_are_those_learned_all_at_once(monkeypatch):
+    # Many links are learned span by span, to hold one span's at a time (at 10^6 detections all
+    # at once doubled the association's peak memory); each segment's numbers are its own, so
+    # the model is the same to the last bit. Tracks with missed detections give spans 2 and 3.
+    d = braking(1, n_vehicles=300)
+    keep = np.random.default_rng(1).random(len(d)) > 0.2
+    d = Detections.from_columns(
+        d.position[keep], d.velocity[keep], d.timestamp[keep], target=d.target[keep].tolist()
+    )
+    params = AssignmentParams()
+    s = arrange(d, params)
+    _, truth = np.unique(d.target, return_inverse=True)
+    prior = segment_prior(s, params.max_skip + 1, params)
+    calls: list[list[int]] = []
+    learn_spans = learning.learn_spans
+    monkeypatch.setattr(
+        learning, "learn_spans", lambda *args: calls.append(list(args[3])) or learn_spans(*args)
+    )
+    monkeypatch.setattr(learning, "SPANS_AT_ONCE_LINKS", 10**9)
+    at_once = learn_segments(s, truth, params, prior)
+    monkeypatch.setattr(learning, "SPANS_AT_ONCE_LINKS", 0)
+    by_span = learn_segments(s, truth, params, prior)
+    assert calls == [[1, 2, 3], [1], [2], [3]]
+    for name in ("skew", "log_bias", "log_speed_ratio", "time_spread", "speed_spread"):
+        np.testing.assert_array_equal(getattr(by_span, name), getattr(at_once, name), err_msg=name)
+    assert (by_span.time_tails, by_span.speed_tails) == (at_once.time_tails, at_once.speed_tails)

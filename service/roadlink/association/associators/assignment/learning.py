@@ -47,6 +47,10 @@ SKEW_GRID = np.linspace(0.0, 1.0, SKEW_STEPS + 1)
 Links = tuple[IntArray, IntArray]
 
 
+# Links above which `learn_segments` learns span by span (see there).
+SPANS_AT_ONCE_LINKS = 1 << 16
+
+
 def learn_segments(
     s: Sensors,
     track: IntArray,
@@ -69,7 +73,15 @@ def learn_segments(
             continue  # keep the prior for this span
         links.append((a, b))
         spans.append(span)
-    learn_spans(s, params, model, spans, links)
+    # Every span's segments at once where the links are few (a paper-size batch paid numpy's
+    # fixed costs span after span); span by span where they are many, so that only one span's
+    # links and their residuals are held at once: at 10^6 detections all spans' at once doubled
+    # the association's peak memory. The same numbers either way (`learn_spans`).
+    if sum(a.size for a, _ in links) <= SPANS_AT_ONCE_LINKS:
+        learn_spans(s, params, model, spans, links)
+    else:
+        for span, span_pairs in zip(spans, links, strict=True):
+            learn_spans(s, params, model, [span], [span_pairs])
     deviation = pace_deviations(s, track, confident)
     if deviation.size:
         model.preferred_speed_spread = spread(deviation)
