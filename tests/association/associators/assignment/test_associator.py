@@ -17,6 +17,7 @@ from roadlink.association.associators.assignment import (
     associator,
 )
 from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.associators.assignment.tracks import SweepSetup
 from roadlink.association.csvio import read_detections_csv
 from roadlink.association.detections import concatenate
 from roadlink.simulation import SlowZone, preset, simulate
@@ -374,3 +375,46 @@ def test_the_pace_holds_tracks_together_where_speeds_are_read_poorly(case):
     assert result.metrics.accuracy >= measured - MARGIN
     assert blind.metrics.accuracy == pytest.approx(without_pace, abs=0.005)
     assert result.metrics.accuracy >= blind.metrics.accuracy + 0.05
+
+
+def test_a_sweep_setup_whose_model_is_learned_from_is_dropped_before_learning(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # A forward pass that may be the last works out the sweep's gating and window edges (two
+    # numbers a detection); when its tracks are learned from, its model will not be the
+    # sweep's, and holding them through learning made the association's peak at 10^6.
+    n = 300
+    config = preset("small").model_copy(
+        update={
+            "n_targets": n,
+            "sensor_positions": [100.0 * i for i in range(20)],
+            "start_time_range": (0.0, float(n)),
+        }
+    )
+    d = simulate(config, seed=0).detections.without_labels()
+    setups: list[SweepSetup] = []
+    events: list[tuple[str, bool]] = []
+
+    class Recorded(SweepSetup):
+        def __init__(self) -> None:
+            super().__init__()
+            setups.append(self)
+
+    build, learn = associator.build_tracks, associator.learn_segments
+
+    def built(*args: object, **kwargs: object) -> object:
+        events.append(("pass", args[8] is not None))  # with the sweep's setup to work out
+        return build(*args, **kwargs)  # type: ignore[arg-type]
+
+    def learned(*args: object, **kwargs: object) -> object:
+        events.append(("learn", any(setup.edges is not None for setup in setups)))
+        return learn(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(associator, "SweepSetup", Recorded)
+    monkeypatch.setattr(associator, "build_tracks", built)
+    monkeypatch.setattr(associator, "learn_segments", learned)
+    AssignmentAssociator().group(d)
+    worked_out = events.index(("pass", True))
+    assert any(kind == "learn" for kind, _ in events[worked_out:])  # that pass learned from
+    assert not any(held for kind, held in events if kind == "learn")
+    assert setups and setups[0].edges is not None  # the last pass's, for the sweep

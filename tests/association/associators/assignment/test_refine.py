@@ -4,24 +4,30 @@ and judges every link it keeps."""
 
 from __future__ import annotations
 
+import weakref
+from dataclasses import dataclass
+
 import numpy as np
 import pytest
 
-from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment import AssignmentParams, refine
 from roadlink.association.associators.assignment.anchors import Anchors
 from roadlink.association.associators.assignment.associator import link_and_learn
 from roadlink.association.associators.assignment.gating import Pairs
+from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR, within_time_scale
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import (
+    Judged,
+    Judging,
     Unchanged,
     fragment_ends,
     refine_boundaries,
     suffix_sums,
 )
-from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.associators.assignment.sensors import Sensors, arrange
 from roadlink.association.associators.assignment.tracks import successors
-from roadlink.simulation import preset, simulate
+from roadlink.simulation import SimulationConfig, preset, simulate
 from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
 
 PARAMS = AssignmentParams()
@@ -163,3 +169,103 @@ def test_a_sweep_worked_out_at_once_is_the_sweep_boundary_by_boundary(
         assert np.array_equal(confidence, plain_confidence, equal_nan=True)
     if seed == 2:
         assert found[0][1]  # the fragments were joined
+
+
+def test_judging_calls_each_run_of_small_boundaries_together_and_holds_one_run(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Boundaries of 3, 4, 5, 20, 0, 2 and 30 links, JUDGED_AT_ONCE 10: the links so far are
+    # 3, 7, 12, 32, 32, 34, 64, so the calls judge [3, 4], [5], [20, 0, 2], [30]; a call is
+    # made as soon as the next boundary starts another, so only the current run is held.
+    monkeypatch.setattr(refine, "JUDGED_AT_ONCE", 10)
+    calls: list[list[int]] = []
+    monkeypatch.setattr(
+        refine,
+        "judge_together",
+        lambda _, judged, __: calls.append([pairs.a.size for pairs, _, _ in judged]),
+    )
+    judging = Judging(np.full(1, np.nan), PARAMS.gate_cost)
+    held = []
+    for size in (3, 4, 5, 20, 0, 2, 30):
+        links = np.zeros(size, dtype=np.int64)
+        pairs = Pairs(links, links, np.zeros(size), np.zeros(size), np.ones(size), links)
+        judging.add((pairs, np.zeros(size), np.zeros(size, dtype=bool)))
+        held.append([p.a.size for p, _, _ in judging.pending])
+    judging.finish()
+    assert calls == [[3, 4], [5], [20, 0, 2], [30]]
+    assert held == [[3], [3, 4], [5], [20], [20, 0], [20, 0, 2], [30]]
+
+
+@dataclass(frozen=True)
+class Linked:
+    """The scaling benchmark's traffic (a target a second at 20-40 m/s, fluctuating), short:
+    ten detections a sensor, so the sweep is made boundary by boundary; after the
+    associator's linking, ready for its sweep."""
+
+    s: Sensors
+    params: AssignmentParams
+    model: SegmentModel
+    track: np.ndarray
+    anchor: Anchors | None
+
+    @classmethod
+    def dense(cls, n_targets: int = 200, n_sensors: int = 20) -> Linked:
+        config = SimulationConfig(
+            n_targets=n_targets,
+            sensor_positions=[100.0 * i for i in range(n_sensors)],
+            velocity_range=(20.0, 40.0),
+            start_time_range=(0.0, float(n_targets)),
+        )
+        s = arrange(simulate(config, seed=3).detections, PARAMS)
+        params = within_time_scale(PARAMS, s.typical_travel_time())
+        prior = segment_prior(s, params.max_skip + 1, params)
+        track, model, anchor = link_and_learn(s, params, prior, prior, params.em_rounds + 1)
+        return cls(s, params, model, track, anchor)
+
+    def sweep(self) -> tuple[np.ndarray, np.ndarray]:
+        """The tracks after one sweep, and the confidences it judged."""
+        confidence = np.full(self.track.size, np.nan)
+        after, _ = refine_boundaries(
+            self.s, self.model, self.params, self.track.copy(), confidence, anchor=self.anchor
+        )
+        return after, confidence
+
+
+def test_a_sweep_judges_the_same_whichever_boundaries_are_judged_together(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Each boundary's nodes are numbered apart, so judging boundaries one by one (as a large
+    # batch's are, each holding its own links) or all in one call gives every confidence to
+    # the bit, and the same tracks.
+    linked = Linked.dense()
+    found = []
+    for at_once in (1, refine.JUDGED_AT_ONCE, 10**9):
+        monkeypatch.setattr(refine, "JUDGED_AT_ONCE", at_once)
+        found.append(linked.sweep())
+    for after, confidence in found[1:]:
+        assert np.array_equal(after, found[0][0])
+        assert np.array_equal(confidence, found[0][1], equal_nan=True)
+    assert np.isfinite(found[0][1]).sum() > linked.track.size // 2  # most links judged
+
+
+def test_a_sweep_holds_the_links_of_a_boundary_or_two_not_of_every_boundary(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Where every boundary has more links than are judged together, each boundary's candidate
+    # links are judged, and freed, as the sweep goes: at 10^6 detections holding every
+    # boundary's until the end of the sweep made most of the association's peak memory.
+    linked = Linked.dense()
+    monkeypatch.setattr(refine, "JUDGED_AT_ONCE", 64)
+    judge_together = refine.judge_together
+    costs: list[weakref.ref[np.ndarray]] = []
+    alive = []
+
+    def judged(confidence: np.ndarray, boundaries: list[Judged], gate: float) -> None:
+        alive.append(sum(cost() is not None for cost in costs))  # of the boundaries judged
+        costs.extend(weakref.ref(cost) for _, cost, _ in boundaries)
+        judge_together(confidence, boundaries, gate)
+
+    monkeypatch.setattr(refine, "judge_together", judged)
+    linked.sweep()
+    assert len(costs) == len(alive) == linked.s.positions.size - 1  # each boundary alone
+    assert max(alive) == 0

@@ -62,6 +62,8 @@ class AssignmentAssociator(Associator):
         sweep = SweepSetup()
         track, model, anchor = link_and_learn(s, params, prior, prior, rounds, passes, sweep)
         track, confidence = repair_and_judge(s, params, model, track, anchor, passes, rounds, sweep)
+        # The sweep's window edges (two numbers a detection) are not the confirmation's.
+        del sweep
         target = confirm_targets(s, model, params, track, anchor)
         target, self.link_confidence = cut_weak_links(s, target, confidence, params.min_confidence)
         return target
@@ -121,6 +123,8 @@ def link_and_learn(
                 passes.progress(rounds / passes.total)
             break
         if r + 1 < rounds:
+            if sweep is not None:
+                sweep.forget()  # this round's model, which the next round's replaces
             model = learn_segments(s, track, params, prior, anchor)
             learned_from = track
             if anchor is None and params.lane_anchors and params.feature_weight > 0:

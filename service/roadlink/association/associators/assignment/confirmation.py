@@ -76,6 +76,25 @@ def track_evidence(
     speed up to and including a, less its anchor's bonus (`anchors.anchor_bonus`)."""
     linked = np.flatnonzero(ids[1:] == ids[:-1])
     a, b = chain[linked], chain[linked + 1]
+    before = _level_before(s, chain, ids, linked)
+    after = detection_level(s, b)
+    if model.pace is not None:
+        # Costed as the forward pass saw it: against the link into a, not yet the one out of b.
+        prv = np.full(s.time.size, -1, dtype=np.int64)
+        prv[b] = a
+        before.pace = incoming_pace(model.pace, s, prv, a)
+    pairs = Pairs.between(s, model, params, a, b)
+    # An anchored link was made for its lane order (`anchors`): that is evidence too.
+    cost = link_cost(params, model, pairs, before, after, s) - anchor_bonus(pairs, anchors)
+    saving = params.gate_cost - cost
+    evidence = np.bincount(ids[linked], weights=np.maximum(saving, 0.0), minlength=ids.max() + 1)
+    return np.asarray(evidence, dtype=np.float64)
+
+
+def _level_before(s: Sensors, chain: IntArray, ids: IntArray, linked: IntArray) -> Level:
+    """The level of each track up to and including the detections chain[linked] (`chain` and
+    `ids` as in `track_evidence`). Apart from it so that its arrays over every detection of
+    the chain are freed before the links are costed (the confirmation's peak at 10^6)."""
     new_track = np.r_[True, ids[1:] != ids[:-1]]
     start = np.flatnonzero(new_track)
     run = np.cumsum(new_track) - 1
@@ -88,7 +107,6 @@ def track_evidence(
     position = np.arange(chain.size) - start[run] + 1.0
     prefix_mean = prefix_sums(s.relative_speed[chain]) / position
     before = Level(prefix_mean[linked], position[linked])
-    after = detection_level(s, b)
     terms = level_terms(s)
     if len(terms) > 1:
         value, weight = terms[1]
@@ -97,17 +115,7 @@ def track_evidence(
         before.length_mean = prefix_sums((value * weight)[chain])[linked] / np.maximum(
             before.length_count, 1.0
         )
-    if model.pace is not None:
-        # Costed as the forward pass saw it: against the link into a, not yet the one out of b.
-        prv = np.full(s.time.size, -1, dtype=np.int64)
-        prv[b] = a
-        before.pace = incoming_pace(model.pace, s, prv, a)
-    pairs = Pairs.between(s, model, params, a, b)
-    # An anchored link was made for its lane order (`anchors`): that is evidence too.
-    cost = link_cost(params, model, pairs, before, after, s) - anchor_bonus(pairs, anchors)
-    saving = params.gate_cost - cost
-    evidence = np.bincount(ids[linked], weights=np.maximum(saving, 0.0), minlength=ids.max() + 1)
-    return np.asarray(evidence, dtype=np.float64)
+    return before
 
 
 def starts_explained(s: Sensors, model: SegmentModel, first: IntArray) -> BoolArray:

@@ -149,33 +149,47 @@ def learn_spans(
     if not spans:
         return
     n_sensors = s.positions.size
-    a = np.concatenate([a for a, _ in links])
-    b = np.concatenate([b for _, b in links])
+    # One span (a large batch's, `learn_segments`): its own arrays, not a copy.
+    a, b = links[0]
+    if len(links) > 1:
+        a, b = np.concatenate([a for a, _ in links]), np.concatenate([b for _, b in links])
     row = np.repeat(np.arange(len(spans)), [a.size for a, _ in links])
-    p = s.sensor[a]
-    key = row * n_sensors + p
+    key = row * n_sensors + s.sensor[a]
+    counts = np.bincount(key, minlength=len(spans) * n_sensors)
+    weight = counts / (counts + params.min_segment_samples)
+    segment = runs(key, counts)
+    seen = np.flatnonzero(counts)
+    segments = Segments(np.array(spans), row, key, counts, weight, segment, seen)
+    log_bias = learn_skews_and_biases(s, model, segments, (a, b))
+    ratio = s.log_speed[b] - s.log_speed[a]
+    learn_centres_and_spreads(params, model, segments, log_bias, ratio)
+
+
+def learn_skews_and_biases(
+    s: Sensors, model: SegmentModel, g: Segments, links: Links
+) -> FloatArray:
+    """Each segment's skew, into `model`, and each link's log travel-time bias under it.
+
+    Apart from `learn_spans` so that the links' travel times, gaps and speeds are freed before
+    the centres and spreads are learned (at 10^6 detections a span's links are a million, and
+    each such array 7.6 MiB)."""
+    a, b = links
+    n_sensors = s.positions.size
     dt = s.time[b] - s.time[a]
     # Every link of a segment spans its gap (`span_links` keeps exactly `span` sensors): one
     # gap a segment, gathered by key, instead of each far end's sensor and position.
     first = np.arange(n_sensors)
-    far = np.minimum(first + np.array(spans)[:, None], n_sensors - 1)
-    dx = (s.positions[far] - s.positions[first]).reshape(-1)[key]
-    counts = np.bincount(key, minlength=len(spans) * n_sensors)
-    weight = counts / (counts + params.min_segment_samples)
-    skew = np.full(counts.size, KINEMATIC_SKEW)
-    segment = runs(key, counts)
-    seen = np.flatnonzero(counts)
+    far = np.minimum(first + g.spans[:, None], n_sensors - 1)
+    dx = (s.positions[far] - s.positions[first]).reshape(-1)[g.key]
+    skew = np.full(g.counts.size, KINEMATIC_SKEW)
     # An even sample of each segment's links, taken before the gathers.
-    here = [segment[k][:: max(1, segment[k].size // SKEW_SAMPLE)] for k in seen]
+    here = [g.links[k][:: max(1, g.links[k].size // SKEW_SAMPLE)] for k in g.seen]
     speed_a, speed_b = s.speed[a], s.speed[b]  # gathered once for the skews and the biases
     learned = best_skews(dt, dx, speed_a, speed_b, here)
-    skew[seen] = KINEMATIC_SKEW + weight[seen] * (learned - KINEMATIC_SKEW)
-    columns = np.array(spans)
-    model.skew[:, columns] = skew.reshape(len(spans), n_sensors).T
-    log_bias = np.log(dt / travel_time(dx, speed_a, speed_b, skew[key]))
-    ratio = s.log_speed[b] - s.log_speed[a]
-    segments = Segments(columns, row, key, counts, weight, segment, seen)
-    learn_centres_and_spreads(params, model, segments, log_bias, ratio)
+    skew[g.seen] = KINEMATIC_SKEW + g.weight[g.seen] * (learned - KINEMATIC_SKEW)
+    model.skew[:, g.spans] = skew.reshape(g.spans.size, n_sensors).T
+    log_bias: FloatArray = np.log(dt / travel_time(dx, speed_a, speed_b, skew[g.key]))
+    return log_bias
 
 
 @dataclass(frozen=True)
@@ -202,7 +216,9 @@ def learn_centres_and_spreads(
 ) -> None:
     """Each segment's log bias and log speed ratio, and their spreads: the spreads shrunk
     towards those pooled over the span's segments by `weight`, the centres towards the prior's
-    by precision (the prior is a rough guess, so a handful of links overrule it)."""
+    by precision (the prior is a rough guess, so a handful of links overrule it). The two
+    residuals are used up: worked out in place (their deviations, then the absolute ones), as
+    a copy of each, twice, was a quarter of learning's memory at 10^6 detections."""
     n_segments, n_spans = g.counts.size, g.spans.size
     n_sensors = n_segments // n_spans
     seen = g.seen
@@ -212,7 +228,9 @@ def learn_centres_and_spreads(
     residuals = (log_bias, ratio)
     centre = np.zeros((n_segments, 2))
     centre[seen] = segment_medians(residuals, g.links, seen)
-    about = [residual - centre[:, j][g.key] for j, residual in enumerate(residuals)]
+    for j, residual in enumerate(residuals):
+        np.subtract(residual, centre[:, j][g.key], out=residual)
+    about = residuals
     # Spreads pooled over a span's segments, each residual taken from its own segment's median.
     bounds = np.searchsorted(g.row, np.arange(n_spans + 1))
     pooled = np.array(
@@ -222,7 +240,9 @@ def learn_centres_and_spreads(
         ]
     )
     # Each segment's own: the median absolute deviation from its median (`spread_about`).
-    mad = segment_medians([np.abs(residual) for residual in about], g.links, seen)
+    for deviation in about:
+        np.abs(deviation, out=deviation)
+    mad = segment_medians(about, g.links, seen)
     # Every seen segment at once, by the operations that were made segment by segment (so the
     # same numbers; a square as libm's pow makes it, `squares`).
     w, n_k = g.weight[seen], g.counts[seen]

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import itertools
-from dataclasses import dataclass
-from operator import itemgetter
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -79,7 +77,7 @@ def refine_boundaries(
             return tracks_from_links(s, prv, in_track), False
     levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
     changed = False
-    judged: list[Judged] = []
+    judging = None if confidence is None else Judging(confidence, params.gate_cost)
     for k in range(1, n_sensors + 1):
         # Detections at sensor k - 1 got their final predecessor at the previous boundary.
         m = s.members(k - 1)
@@ -106,10 +104,10 @@ def refine_boundaries(
             nxt[linked_a] = linked_b
             prv[linked_b] = linked_a
             changed = changed or not np.array_equal(nxt[tails], was)
-        if confidence is not None and not (tentative and changed):
-            judged.append((pairs, cost, nxt[pairs.a] == pairs.b))
-    if confidence is not None:
-        judge_links(confidence, judged, params.gate_cost)
+        if judging is not None and not (tentative and changed):
+            judging.add((pairs, cost, nxt[pairs.a] == pairs.b))
+    if judging is not None:
+        judging.finish()
     return tracks_from_links(s, prv, in_track), changed
 
 
@@ -238,15 +236,44 @@ JUDGED_AT_ONCE = 4096
 def judge_links(confidence: FloatArray, judged: list[Judged], gate: float) -> None:
     """Write into `confidence` how sure each kept link is against its rivals at each boundary
     (`matching.chosen_marginals`), a link judged at several boundaries (one over a missed
-    detection) as at the last.
+    detection) as at the last (`Judging`)."""
+    judging = Judging(confidence, gate)
+    for boundary in judged:
+        judging.add(boundary)
+    judging.finish()
+
+
+@dataclass
+class Judging:
+    """`judge_links` boundary by boundary, as the sweep reaches them.
 
     Neighbouring boundaries with few links between them (a paper-size batch's every boundary)
     are judged in one call: numpy's fixed cost per call, over a dozen calls a boundary, was most
     of a small sweep's judging. Boundaries with many are judged alone, as one call over all of
-    them would sort them all together."""
-    group = np.cumsum([pairs.a.size for pairs, _, _ in judged]) // JUDGED_AT_ONCE
-    for _, together in itertools.groupby(zip(group.tolist(), judged, strict=True), itemgetter(0)):
-        judge_together(confidence, [boundary for _, boundary in together], gate)
+    them would sort them all together. A boundary joins the call of those before it while the
+    links so far stay within the same multiple of JUDGED_AT_ONCE; a call is made as soon as the
+    next boundary starts another, so that a large batch holds one or two boundaries' links, not
+    the whole road's (at 10^6 detections most of a sweep's memory)."""
+
+    confidence: FloatArray
+    gate: float
+    pending: list[Judged] = field(default_factory=list)
+    group: int = 0  # the links so far // JUDGED_AT_ONCE, of the pending boundaries
+    links: int = 0  # the links of every boundary added so far
+
+    def add(self, boundary: Judged) -> None:
+        self.links += boundary[0].a.size
+        group = self.links // JUDGED_AT_ONCE
+        if self.pending and group != self.group:
+            self.finish()
+        self.pending.append(boundary)
+        self.group = group
+
+    def finish(self) -> None:
+        """Judge the pending boundaries."""
+        if self.pending:
+            judge_together(self.confidence, self.pending, self.gate)
+        self.pending = []
 
 
 def judge_together(confidence: FloatArray, judged: list[Judged], gate: float) -> None:

@@ -152,6 +152,11 @@ class SweepSetup:
             return None
         return (self.gate, self.edges) if self.gate.gate == gate else None
 
+    def forget(self) -> None:
+        """Drop what was worked out, once its model will not be the sweep's: its edges are two
+        numbers a detection, held through learning (the association's peak at 10^6)."""
+        self.model, self.gate, self.edges = None, None, None
+
 
 def build_tracks(
     s: Sensors,
