@@ -25,8 +25,16 @@ from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 import orjson
+import polars as pl
 
 from roadlink.association.csvio import spreadsheet_safe
+from roadlink.association.text_columns import (
+    float_column,
+    has_any,
+    joined_rows,
+    text_column,
+    where,
+)
 
 if TYPE_CHECKING:
     from roadlink.association.result import AssociationResult
@@ -52,22 +60,20 @@ def write_result_json(result: AssociationResult, stream: BinaryIO) -> None:
     """
     holes: list[Any] = []
     document = result.document(_holes_into(holes))
+    rows = _RowTexts(result, _INDENTED, binary=True)
     try:
-        if not _columns_agree(result):
+        if not rows.agree:
             raise _Disagrees
         for name in ("params", "effective_params", "metrics"):
             if name in document:
                 document[name] = _respelt(document[name])
-        for target in document["targets"]:
-            for key, value in target.items():
-                if key != "detections":
-                    target[key] = _respelt(value)
+        _respell_targets(document["targets"])
     except _Disagrees:
         stream.write((json.dumps(result.to_dict(), indent=2) + "\n").encode())
         return
     text = orjson.dumps(document, option=orjson.OPT_INDENT_2).decode()
-    for chunk in _filled(text, holes, _RowTexts(result, _INDENTED)):
-        stream.write(chunk.encode())
+    for chunk in _filled(text, holes, rows):
+        stream.write(chunk if isinstance(chunk, bytes) else chunk.encode())
     stream.write(b"\n")
 
 
@@ -77,11 +83,12 @@ def result_json_compact(result: AssociationResult) -> str:
     rows' text is joined from the columns into them. orjson's own spelling throughout, so no
     value needs respelling; only where the rows' text would not be orjson's (text that is not
     printable ASCII, a value that is not finite) does orjson write the row objects."""
-    if not _columns_agree(result):
+    rows = _RowTexts(result, _COMPACT)
+    if not rows.agree:
         return orjson.dumps(result.to_dict()).decode()
     holes: list[Any] = []
     text = orjson.dumps(result.document(_holes_into(holes))).decode()
-    return "".join(_filled(text, holes, _RowTexts(result, _COMPACT)))
+    return "".join(str(chunk) for chunk in _filled(text, holes, rows))
 
 
 def _holes_into(holes: list[Any]) -> Callable[[Any], Any]:
@@ -95,7 +102,7 @@ def _holes_into(holes: list[Any]) -> Callable[[Any], Any]:
     return hole
 
 
-def _filled(text: str, holes: list[Any], rows: _RowTexts) -> Iterator[str]:
+def _filled(text: str, holes: list[Any], rows: _RowTexts) -> Iterator[str | bytes]:
     """`text` (orjson's, with a hole for each of `holes`) with the holes' rows written in, a
     batch of targets at a time. No text orjson writes holds a NUL (it escapes control
     characters): the holes do."""
@@ -105,7 +112,7 @@ def _filled(text: str, holes: list[Any], rows: _RowTexts) -> Iterator[str]:
     for end in _batches(holes):
         yield rows.text(pieces[start:end], holes[start:end], 8)
         start = end
-    yield rows.text([pieces[-2]], [unassigned], 4) + pieces[-1]
+    yield rows.text([pieces[-2]], [unassigned], 4) + rows.encoded(pieces[-1])
 
 
 _HOLE_TEXT = "\x00"
@@ -145,24 +152,26 @@ _COMPACT = _Layout(indented=False, colon=":")
 
 class _RowTexts:
     """The text of the detection rows, as `json.dumps(indent=2)` writes them (or orjson's
-    compact text, by `layout`), from the columns: each column formatted at once, the constant
-    text between them as columns of their own (a text per distinct sensor, with its keys), and
-    all rows joined in one `str.join` (no string per row)."""
+    compact text, by `layout`), from the columns: each column's text made by polars at once,
+    the constant text between them given once (a text per distinct sensor, with its keys), and
+    all rows joined by polars (`text_columns.joined_rows`): no Python object per value."""
 
-    def __init__(self, result: AssociationResult, layout: _Layout) -> None:
+    def __init__(self, result: AssociationResult, layout: _Layout, binary: bool = False) -> None:
         d = result.detections
         self.result = result
         self.layout = layout
+        self.binary = binary  # UTF-8 bytes (for a stream), else text
         # orjson's compact floats are its own spelling; the indented text is Python's.
         self.spelling = "python" if layout.indented else "orjson"
+        self.ids, self.sensors = text_column(d.detection_id), text_column(d.sensor_id)
+        self.agree = _columns_agree(result, self.ids, self.sensors)
         # Ids are never None; the constant text around them quotes them, when none needs
         # escaping (else they are JSON strings already).
-        joined = "".join(d.detection_id.tolist()) + "".join(set(d.sensor_id.tolist()))
-        self.quote = "" if '"' in joined or "\\" in joined else '"'
-        self.ids = d.detection_id if self.quote else _json_strings(d.detection_id)
-        sensors = d.sensor_id if self.quote else _json_strings(d.sensor_id)
-        self.sensor_items = sensors.tolist()
-        self.sensor_texts: dict[int, Any] = {}
+        self.quote = '"'
+        if self.agree and (has_any(self.ids, r'["\\]') or has_any(self.sensors, r'["\\]')):
+            self.quote = ""
+            self.ids = text_column(_json_strings(d.detection_id))
+            self.sensors = text_column(_json_strings(d.sensor_id))
         self.features = d.features
         self.linked = (
             None
@@ -170,12 +179,15 @@ class _RowTexts:
             else (result.groups >= 0) & ~np.isnan(result.link_confidence)
         )
 
-    def text(self, pieces: list[str], holes: list[Any], indent: int) -> str:
+    def encoded(self, text: str) -> str | bytes:
+        return text.encode() if self.binary else text
+
+    def text(self, pieces: list[str], holes: list[Any], indent: int) -> Any:
         """Each of `pieces` followed by the JSON list of its hole's rows (indices into the
         detections; their `{` at `indent` spaces), as one text. Only a last hole may be empty."""
         index = np.concatenate(holes)
         if index.size == 0:
-            return "".join(p + "[]" for p in pieces)
+            return self.encoded("".join(p + "[]" for p in pieces))
         d, layout, q = self.result.detections, self.layout, self.quote
         inner = indent + 2
         opening = layout.line(indent) + "{" + layout.key(inner, "detection_id") + q
@@ -185,74 +197,53 @@ class _RowTexts:
         for k, (piece, members) in enumerate(zip(pieces, holes, strict=True)):
             lead[start] = (close_list if k else "") + piece + "[" + opening
             start += members.size
-        extra = self._extra(index, inner, close_row)
-        n = index.size
-        # The constant text between the numbers as columns of their own (a list of one string
-        # repeated costs a pointer a row), not attached to each number: a sixth faster.
-        columns = [
-            lead,
-            self.ids[index].tolist(),
-            self._sensor_texts(inner)[index].tolist(),
+        parts: list[Any] = [
+            text_column(lead),
+            self.ids.gather(index),
+            q + "," + layout.key(inner, "sensor_id") + q,
+            self.sensors.gather(index),
+            q + "," + layout.key(inner, "position"),
             self._floats(d.position[index]),
-            ["," + layout.key(inner, "velocity")] * n,
+            "," + layout.key(inner, "velocity"),
             self._floats(d.velocity[index]),
-            ["," + layout.key(inner, "timestamp")] * n,
+            "," + layout.key(inner, "timestamp"),
             self._floats(d.timestamp[index]),
-            extra or [close_row] * n,
+            *self._extra(index, inner, close_row),
         ]
-        return _interleaved(columns) + close_list
+        return joined_rows(parts, close_list, binary=self.binary)
 
-    def _floats(self, values: Any, prefix: str = "", suffix: str = "") -> list[str]:
-        return float_texts(values, prefix, suffix, spelling=self.spelling)
+    def _floats(self, values: Any) -> Any:
+        return float_column(values, spelling=self.spelling)
 
-    def _sensor_texts(self, inner: int) -> Any:
-        """What follows each detection's id up to its position: its sensor's text (an object
-        per distinct sensor, shared by its rows), at the indent `inner`."""
-        if inner not in self.sensor_texts:
-            q, layout = self.quote, self.layout
-            before = q + "," + layout.key(inner, "sensor_id") + q
-            after = q + "," + layout.key(inner, "position")
-            text = {s: before + s + after for s in set(self.sensor_items)}
-            items = list(map(text.__getitem__, self.sensor_items))
-            self.sensor_texts[inner] = np.array(items, dtype=object)
-        return self.sensor_texts[inner]
+    def _extra(self, index: Any, inner: int, close_row: str) -> list[Any]:
+        """What follows a row's timestamp: its features, when the input has them, its link's
+        confidence where it has one, and the row's closing brace."""
+        extra: list[Any] = []
+        if self.features:  # rare beside a million rows: a string per row is fine
+            cells = np.full(index.size, "", dtype=object)
+            for name in self.features:
+                cells = cells + ("," + self.layout.key(inner, name)) + self._feature(name, index)
+            extra.append(text_column(cells.tolist()))
+        if self.linked is None or self.result.link_confidence is None:
+            return [*extra, close_row]
+        linked = self.linked[index]
+        links = np.where(linked, self.result.link_confidence[index], 0.0)  # no NaN to spell
+        prefix = "," + self.layout.key(inner, "link_confidence")
+        link_text = pl.concat_str(pl.lit(prefix), pl.lit(self._floats(links)), pl.lit(close_row))
+        return [*extra, where(linked, link_text, close_row)]
 
-    def _extra(self, index: Any, inner: int, close_row: str) -> list[str]:
-        """What follows a row's timestamp, when it has features or a link's confidence: they,
-        and the row's closing brace."""
-        d = self.result.detections
-        if not self.features and self.linked is None:
-            return []
-        extra = np.full(index.size, "", dtype=object)
-        for name in self.features:  # rare beside a million rows: a string per row is fine
-            values = getattr(d, name)[index]
-            if name == "lane":
-                cells = np.array([str(v) for v in values.tolist()], dtype=object)
-                cells[values < 0] = "null"
-            elif name == "length":
-                cells = np.array(self._floats(values), dtype=object)
-                cells[np.isnan(values)] = "null"
-            else:
-                cells = _json_strings(values)
-            extra = extra + ("," + self.layout.key(inner, name)) + cells
-        ending: Any = np.full(index.size, close_row, dtype=object)
-        if self.linked is not None and self.result.link_confidence is not None:
-            prefix = "," + self.layout.key(inner, "link_confidence")
-            links = self._floats(self.result.link_confidence[index], prefix, close_row)
-            ending = np.where(self.linked[index], np.array(links, dtype=object), ending)
-        # Without features (the common case) no string is made here: the texts are taken.
-        extra = extra + ending if self.features else ending
-        return list(extra.tolist())
-
-
-def _interleaved(columns: list[list[str]]) -> str:
-    """The cells of `columns` (of one length) row by row, as one text: placed into one list by
-    slice assignment (a C loop each), a fifth faster than joining `zip`'s tuples."""
-    k = len(columns)
-    cells: list[str] = [""] * (k * len(columns[0]))
-    for j, column in enumerate(columns):
-        cells[j::k] = column
-    return "".join(cells)
+    def _feature(self, name: str, index: Any) -> Any:
+        """A feature's cells of the rows `index`, as JSON (null where not reported)."""
+        values = getattr(self.result.detections, name)[index]
+        if name == "lane":
+            cells = np.array([str(v) for v in values.tolist()], dtype=object)
+            cells[values < 0] = "null"
+        elif name == "length":
+            cells = np.array(float_texts(values, spelling=self.spelling), dtype=object)
+            cells[np.isnan(values)] = "null"
+        else:
+            cells = _json_strings(values)
+        return cells
 
 
 def _json_strings(values: Any) -> Any:
@@ -294,17 +285,36 @@ def _respelt(value: Any) -> Any:
     raise _Disagrees
 
 
-def _columns_agree(result: AssociationResult) -> bool:
+def _respell_targets(targets: list[dict[str, Any]]) -> None:
+    """`_respelt` each target's values but its detections: its name (`T1`, printable ASCII)
+    as it is, its confidences (20,000 at 10^6 detections) checked at once and respelt only
+    when one would need it."""
+    confidences = [t["confidence"] for t in targets if "confidence" in t]
+    values = np.array(confidences, dtype=float)
+    common = bool(np.all(np.isfinite(values) & ((values == 0) | (np.abs(values) >= 1e-4))))
+    for target in targets:
+        for key, value in target.items():
+            if key not in ("target", "detections") and not (key == "confidence" and common):
+                target[key] = _respelt(value)
+
+
+def _columns_agree(result: AssociationResult, ids: Any, sensors: Any) -> bool:
     """Whether the detection rows' values are written alike by the plain encoder and here:
-    finite numbers, printable ASCII text."""
+    finite numbers, printable ASCII text (`ids` and `sensors`: those columns' text)."""
     d = result.detections
     numbers = [d.position, d.velocity, d.timestamp, d.length[~np.isnan(d.length)]]
     if result.link_confidence is not None:
         numbers.append(result.link_confidence[~np.isnan(result.link_confidence)])
-    texts = [d.detection_id, d.sensor_id, d.vehicle_class]
-    return all(bool(np.all(np.isfinite(v))) for v in numbers) and all(
-        _plain_text("".join(filter(None, v.tolist()))) for v in texts
+    classes = _plain_text("".join(filter(None, set(d.vehicle_class.tolist()))))
+    return (
+        all(bool(np.all(np.isfinite(v))) for v in numbers)
+        and classes
+        and not any(has_any(texts, _NOT_PRINTABLE_ASCII) for texts in (ids, sensors))
     )
+
+
+# What `_plain_text` refuses, as a pattern.
+_NOT_PRINTABLE_ASCII = r"[^ -~]"
 
 
 def _plain_text(text: str) -> bool:
