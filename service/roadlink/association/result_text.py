@@ -25,7 +25,6 @@ from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 import orjson
-import polars as pl
 
 from roadlink.association.csvio import spreadsheet_safe
 from roadlink.association.text_columns import (
@@ -60,7 +59,7 @@ def write_result_json(result: AssociationResult, stream: BinaryIO) -> None:
     """
     holes: list[Any] = []
     document = result.document(_holes_into(holes))
-    rows = _RowTexts(result, _INDENTED, binary=True)
+    rows = _RowTexts(result, _INDENTED)
     try:
         if not rows.agree:
             raise _Disagrees
@@ -73,7 +72,7 @@ def write_result_json(result: AssociationResult, stream: BinaryIO) -> None:
         return
     text = orjson.dumps(document, option=orjson.OPT_INDENT_2).decode()
     for chunk in _filled(text, holes, rows):
-        stream.write(chunk if isinstance(chunk, bytes) else chunk.encode())
+        stream.write(chunk.encode())
     stream.write(b"\n")
 
 
@@ -88,7 +87,7 @@ def result_json_compact(result: AssociationResult) -> str:
         return orjson.dumps(result.to_dict()).decode()
     holes: list[Any] = []
     text = orjson.dumps(result.document(_holes_into(holes))).decode()
-    return "".join(str(chunk) for chunk in _filled(text, holes, rows))
+    return "".join(_filled(text, holes, rows))
 
 
 def _holes_into(holes: list[Any]) -> Callable[[Any], Any]:
@@ -102,7 +101,7 @@ def _holes_into(holes: list[Any]) -> Callable[[Any], Any]:
     return hole
 
 
-def _filled(text: str, holes: list[Any], rows: _RowTexts) -> Iterator[str | bytes]:
+def _filled(text: str, holes: list[Any], rows: _RowTexts) -> Iterator[str]:
     """`text` (orjson's, with a hole for each of `holes`) with the holes' rows written in, a
     batch of targets at a time. No text orjson writes holds a NUL (it escapes control
     characters): the holes do."""
@@ -112,7 +111,7 @@ def _filled(text: str, holes: list[Any], rows: _RowTexts) -> Iterator[str | byte
     for end in _batches(holes):
         yield rows.text(pieces[start:end], holes[start:end], 8)
         start = end
-    yield rows.text([pieces[-2]], [unassigned], 4) + rows.encoded(pieces[-1])
+    yield rows.text([pieces[-2]], [unassigned], 4) + pieces[-1]
 
 
 _HOLE_TEXT = "\x00"
@@ -156,11 +155,10 @@ class _RowTexts:
     the constant text between them given once (a text per distinct sensor, with its keys), and
     all rows joined by polars (`text_columns.joined_rows`): no Python object per value."""
 
-    def __init__(self, result: AssociationResult, layout: _Layout, binary: bool = False) -> None:
+    def __init__(self, result: AssociationResult, layout: _Layout) -> None:
         d = result.detections
         self.result = result
         self.layout = layout
-        self.binary = binary  # UTF-8 bytes (for a stream), else text
         # orjson's compact floats are its own spelling; the indented text is Python's.
         self.spelling = "python" if layout.indented else "orjson"
         self.ids, self.sensors = text_column(d.detection_id), text_column(d.sensor_id)
@@ -179,15 +177,12 @@ class _RowTexts:
             else (result.groups >= 0) & ~np.isnan(result.link_confidence)
         )
 
-    def encoded(self, text: str) -> str | bytes:
-        return text.encode() if self.binary else text
-
-    def text(self, pieces: list[str], holes: list[Any], indent: int) -> Any:
+    def text(self, pieces: list[str], holes: list[Any], indent: int) -> str:
         """Each of `pieces` followed by the JSON list of its hole's rows (indices into the
         detections; their `{` at `indent` spaces), as one text. Only a last hole may be empty."""
         index = np.concatenate(holes)
         if index.size == 0:
-            return self.encoded("".join(p + "[]" for p in pieces))
+            return "".join(p + "[]" for p in pieces)
         d, layout, q = self.result.detections, self.layout, self.quote
         inner = indent + 2
         opening = layout.line(indent) + "{" + layout.key(inner, "detection_id") + q
@@ -210,7 +205,7 @@ class _RowTexts:
             self._floats(d.timestamp[index]),
             *self._extra(index, inner, close_row),
         ]
-        return joined_rows(parts, close_list, binary=self.binary)
+        return joined_rows(parts, close_list)
 
     def _floats(self, values: Any) -> Any:
         return float_column(values, spelling=self.spelling)
@@ -229,7 +224,7 @@ class _RowTexts:
         linked = self.linked[index]
         links = np.where(linked, self.result.link_confidence[index], 0.0)  # no NaN to spell
         prefix = "," + self.layout.key(inner, "link_confidence")
-        link_text = pl.concat_str(pl.lit(prefix), pl.lit(self._floats(links)), pl.lit(close_row))
+        link_text = [prefix, self._floats(links), close_row]
         return [*extra, where(linked, link_text, close_row)]
 
     def _feature(self, name: str, index: Any) -> Any:

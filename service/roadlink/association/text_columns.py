@@ -9,15 +9,22 @@ magnitude (`1e-5` against `1e-05`) and where not finite: there `repr` is written
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import polars as pl
+
+if TYPE_CHECKING:
+    import polars as pl
+
+# polars is imported by each function, on the first result written: every process imports the
+# core, and few write a result (a small job's worker need not pay polars' import).
 
 
 def float_column(values: np.ndarray, spelling: str = "python") -> pl.Series:
     """The text of each float of `values`, as a polars String column: `repr`'s
     (`spelling="python"`), or orjson's (`"orjson"`, for finite values only)."""
+    import polars as pl
+
     array = np.ascontiguousarray(values, dtype=np.float64)
     texts = pl.Series(array).cast(pl.String)
     if spelling == "python":
@@ -29,6 +36,8 @@ def float_column(values: np.ndarray, spelling: str = "python") -> pl.Series:
 
 def text_column(values: Any) -> pl.Series:
     """Python strs or None (a list or an object array) as a polars String column."""
+    import polars as pl
+
     return pl.Series(values, dtype=pl.String)
 
 
@@ -37,18 +46,21 @@ def has_any(texts: pl.Series, pattern: str) -> bool:
     return bool(texts.str.contains(pattern).any())
 
 
-def joined_rows(parts: list[Any], tail: str = "", binary: bool = False) -> str | bytes:
+def joined_rows(parts: list[Any], tail: str = "") -> str:
     """Each row's parts (columns of one length, expressions over them, or texts the same in
-    every row) one after another, row after row, then `tail`, as one text (UTF-8 bytes with
-    `binary`: no decoded copy)."""
+    every row) one after another, row after row, then `tail`, as one text."""
+    import polars as pl
+
     exprs = [part if isinstance(part, pl.Expr) else pl.lit(part) for part in parts]
     joined = pl.concat_str(exprs).str.join("") + pl.lit(tail)
-    if binary:
-        return bytes(pl.select(joined.cast(pl.Binary)).item())
     return str(pl.select(joined).item())
 
 
-def where(mask: np.ndarray, then: pl.Expr, otherwise: str) -> pl.Expr:
-    """`then`'s text where `mask` holds, else the text `otherwise`."""
+def where(mask: np.ndarray, then: list[Any], otherwise: str) -> pl.Expr:
+    """Where `mask` holds, the text of the parts `then` (as `joined_rows` takes them) one
+    after another; elsewhere the text `otherwise`."""
+    import polars as pl
+
+    joined = pl.concat_str([part if isinstance(part, pl.Expr) else pl.lit(part) for part in then])
     condition = pl.lit(pl.Series(mask, dtype=pl.Boolean))
-    return pl.when(condition).then(then).otherwise(pl.lit(otherwise))
+    return pl.when(condition).then(joined).otherwise(pl.lit(otherwise))
