@@ -151,9 +151,11 @@ _COMPACT = _Layout(indented=False, colon=":")
 
 class _RowTexts:
     """The text of the detection rows, as `json.dumps(indent=2)` writes them (or orjson's
-    compact text, by `layout`), from the columns: each column's text made by polars at once,
-    the constant text between them given once (a text per distinct sensor, with its keys), and
-    all rows joined by polars (`text_columns.joined_rows`): no Python object per value."""
+    compact text, by `layout`), from the columns: each column's text made at once, the
+    constant text between them given once, and all rows joined at once. From `_POLARS_ROWS`
+    rows polars makes and joins the columns (`text_columns`: no Python object per value);
+    below, where polars' fixed cost per call (about a millisecond) would outweigh the rows,
+    Python lists do (a paper-size job's result is written in the service's every job)."""
 
     def __init__(self, result: AssociationResult, layout: _Layout) -> None:
         d = result.detections
@@ -161,21 +163,32 @@ class _RowTexts:
         self.layout = layout
         # orjson's compact floats are its own spelling; the indented text is Python's.
         self.spelling = "python" if layout.indented else "orjson"
-        self.ids, self.sensors = text_column(d.detection_id), text_column(d.sensor_id)
-        self.agree = _columns_agree(result, self.ids, self.sensors)
+        self.polars = len(d) >= _POLARS_ROWS
+        self.ids, self.sensors = self._texts(d.detection_id), self._texts(d.sensor_id)
+        self.agree = _columns_agree(result) and not self._holds(_NOT_PRINTABLE_ASCII)
         # Ids are never None; the constant text around them quotes them, when none needs
         # escaping (else they are JSON strings already).
         self.quote = '"'
-        if self.agree and (has_any(self.ids, r'["\\]') or has_any(self.sensors, r'["\\]')):
+        if self.agree and self._holds(r'["\\]'):
             self.quote = ""
-            self.ids = text_column(_json_strings(d.detection_id))
-            self.sensors = text_column(_json_strings(d.sensor_id))
+            self.ids = self._texts(_json_strings(d.detection_id))
+            self.sensors = self._texts(_json_strings(d.sensor_id))
         self.features = d.features
         self.linked = (
             None
             if result.link_confidence is None
             else (result.groups >= 0) & ~np.isnan(result.link_confidence)
         )
+
+    def _texts(self, values: Any) -> Any:
+        return text_column(values) if self.polars else values
+
+    def _holds(self, pattern: str) -> bool:
+        """Whether an id or a sensor id holds a match of `pattern`."""
+        if self.polars:
+            return has_any(self.ids, pattern) or has_any(self.sensors, pattern)
+        texts = "".join(self.ids.tolist()) + "".join(set(self.sensors.tolist()))
+        return re.search(pattern, texts) is not None
 
     def text(self, pieces: list[str], holes: list[Any], indent: int) -> str:
         """Each of `pieces` followed by the JSON list of its hole's rows (indices into the
@@ -193,10 +206,10 @@ class _RowTexts:
             lead[start] = (close_list if k else "") + piece + "[" + opening
             start += members.size
         parts: list[Any] = [
-            text_column(lead),
-            self.ids.gather(index),
+            lead,
+            self._gather(self.ids, index),
             q + "," + layout.key(inner, "sensor_id") + q,
-            self.sensors.gather(index),
+            self._gather(self.sensors, index),
             q + "," + layout.key(inner, "position"),
             self._floats(d.position[index]),
             "," + layout.key(inner, "velocity"),
@@ -205,10 +218,19 @@ class _RowTexts:
             self._floats(d.timestamp[index]),
             *self._extra(index, inner, close_row),
         ]
-        return joined_rows(parts, close_list)
+        if self.polars:
+            return joined_rows(parts, close_list)
+        return _interleaved([p if isinstance(p, list) else [p] * index.size for p in parts]) + (
+            close_list
+        )
+
+    def _gather(self, texts: Any, index: Any) -> Any:
+        return texts.gather(index) if self.polars else texts[index].tolist()
 
     def _floats(self, values: Any) -> Any:
-        return float_column(values, spelling=self.spelling)
+        if self.polars:
+            return float_column(values, spelling=self.spelling)
+        return float_texts(values, spelling=self.spelling)
 
     def _extra(self, index: Any, inner: int, close_row: str) -> list[Any]:
         """What follows a row's timestamp: its features, when the input has them, its link's
@@ -218,14 +240,16 @@ class _RowTexts:
             cells = np.full(index.size, "", dtype=object)
             for name in self.features:
                 cells = cells + ("," + self.layout.key(inner, name)) + self._feature(name, index)
-            extra.append(text_column(cells.tolist()))
+            extra.append(cells.tolist())
         if self.linked is None or self.result.link_confidence is None:
             return [*extra, close_row]
         linked = self.linked[index]
         links = np.where(linked, self.result.link_confidence[index], 0.0)  # no NaN to spell
         prefix = "," + self.layout.key(inner, "link_confidence")
-        link_text = [prefix, self._floats(links), close_row]
-        return [*extra, where(linked, link_text, close_row)]
+        if self.polars:
+            return [*extra, where(linked, [prefix, self._floats(links), close_row], close_row)]
+        texts = np.array(float_texts(links, prefix, close_row, self.spelling), dtype=object)
+        return [*extra, np.where(linked, texts, close_row).tolist()]
 
     def _feature(self, name: str, index: Any) -> Any:
         """A feature's cells of the rows `index`, as JSON (null where not reported)."""
@@ -239,6 +263,21 @@ class _RowTexts:
         else:
             cells = _json_strings(values)
         return cells
+
+
+# From this many detections the rows' text is made by polars (see `_RowTexts`); a test sets it
+# to 0 and to a billion, to check the two ways write the same bytes.
+_POLARS_ROWS = 10_000
+
+
+def _interleaved(columns: list[list[str]]) -> str:
+    """The cells of `columns` (of one length) row by row, as one text: placed into one list by
+    slice assignment (a C loop each), a fifth faster than joining `zip`'s tuples."""
+    k = len(columns)
+    cells: list[str] = [""] * (k * len(columns[0]))
+    for j, column in enumerate(columns):
+        cells[j::k] = column
+    return "".join(cells)
 
 
 def _json_strings(values: Any) -> Any:
@@ -293,19 +332,15 @@ def _respell_targets(targets: list[dict[str, Any]]) -> None:
                 target[key] = _respelt(value)
 
 
-def _columns_agree(result: AssociationResult, ids: Any, sensors: Any) -> bool:
-    """Whether the detection rows' values are written alike by the plain encoder and here:
-    finite numbers, printable ASCII text (`ids` and `sensors`: those columns' text)."""
+def _columns_agree(result: AssociationResult) -> bool:
+    """Whether the detection rows' numbers and classes are written alike by the plain encoder
+    and here: finite numbers, printable ASCII text (the ids: see `_RowTexts`)."""
     d = result.detections
     numbers = [d.position, d.velocity, d.timestamp, d.length[~np.isnan(d.length)]]
     if result.link_confidence is not None:
         numbers.append(result.link_confidence[~np.isnan(result.link_confidence)])
     classes = _plain_text("".join(filter(None, set(d.vehicle_class.tolist()))))
-    return (
-        all(bool(np.all(np.isfinite(v))) for v in numbers)
-        and classes
-        and not any(has_any(texts, _NOT_PRINTABLE_ASCII) for texts in (ids, sensors))
-    )
+    return classes and all(bool(np.all(np.isfinite(v))) for v in numbers)
 
 
 # What `_plain_text` refuses, as a pattern.

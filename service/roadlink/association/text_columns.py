@@ -47,12 +47,12 @@ def has_any(texts: pl.Series, pattern: str) -> bool:
 
 
 def joined_rows(parts: list[Any], tail: str = "") -> str:
-    """Each row's parts (columns of one length, expressions over them, or texts the same in
-    every row) one after another, row after row, then `tail`, as one text."""
+    """Each row's parts (columns of one length, as polars Series or lists of Python strs,
+    expressions over them, or texts the same in every row) one after another, row after row,
+    then `tail`, as one text."""
     import polars as pl
 
-    exprs = [part if isinstance(part, pl.Expr) else pl.lit(part) for part in parts]
-    joined = pl.concat_str(exprs).str.join("") + pl.lit(tail)
+    joined = pl.concat_str(_expressions(parts)).str.join("") + pl.lit(tail)
     return str(pl.select(joined).item())
 
 
@@ -61,6 +61,17 @@ def where(mask: np.ndarray, then: list[Any], otherwise: str) -> pl.Expr:
     after another; elsewhere the text `otherwise`."""
     import polars as pl
 
-    joined = pl.concat_str([part if isinstance(part, pl.Expr) else pl.lit(part) for part in then])
+    joined = pl.concat_str(_expressions(then))
     condition = pl.lit(pl.Series(mask, dtype=pl.Boolean))
     return pl.when(condition).then(joined).otherwise(pl.lit(otherwise))
+
+
+def _expressions(parts: list[Any]) -> list[pl.Expr]:
+    import polars as pl
+
+    return [
+        part
+        if isinstance(part, pl.Expr)
+        else pl.lit(text_column(part) if isinstance(part, list) else part)
+        for part in parts
+    ]
