@@ -15,7 +15,7 @@ import pytest
 
 from roadlink.association import associate
 from roadlink.association.detections import COLUMNS, Detections
-from roadlink.association.result import build_result, result_from_dict
+from roadlink.association.result import build_result, result_from_dict, road_order
 from roadlink.association.scores import wrongly_grouped
 from roadlink.simulation import preset, simulate
 from tests.helpers import with_features
@@ -169,3 +169,30 @@ def test_target_confidences_are_each_targets_confidence():
     assert result.target_confidences(members) == [result.target_confidence(m) for m in members]
     plain = build_result(d, rng.integers(-1, 9, n), "x", {})
     assert plain.target_confidences(members) == [None] * len(members)
+
+
+def test_road_order_is_lexsorts_order_with_ties_and_signed_zeros():
+    """Targets' members in the order `np.lexsort((timestamp, position, groups))` gives, equal
+    rows in their order, -0.0 and 0.0 one position (or one time): on rows with many ties."""
+    rng = np.random.default_rng(5)
+    for trial in range(200):
+        n = int(rng.integers(1, 300))
+        groups = rng.integers(0, 8, n)
+        position = rng.choice([0.0, -0.0, 100.0, 250.0, 1e-300, -5.0], n)
+        times = [0.0, -0.0, 1.0, 2.5]
+        timestamp = rng.choice(times, n) if trial % 2 else rng.standard_normal(n)
+        expected = np.lexsort((timestamp, position, groups))
+        assert np.array_equal(road_order(groups, position, timestamp), expected)
+
+
+def test_target_members_are_the_lexsorted_assigned_detections():
+    d = simulate(preset("small", duplicate_probability=0.2), seed=4).detections
+    groups = np.random.default_rng(1).integers(-1, 30, len(d))
+    result = build_result(d, groups, "x", {})
+    groups = result.groups  # renumbered
+    order = np.lexsort((d.timestamp, d.position, groups))
+    assigned = order[groups[order] >= 0]
+    expected = np.split(assigned, np.flatnonzero(np.diff(groups[assigned])) + 1)
+    members = result.target_members()
+    assert len(members) == len(expected)
+    assert all(np.array_equal(m, e) for m, e in zip(members, expected, strict=True))

@@ -19,6 +19,16 @@ from roadlink.association.result_text import result_json_compact, result_json_te
 from roadlink.simulation import preset, simulate
 
 
+@pytest.fixture(autouse=True, scope="module", params=["polars", "lists"])
+def rows_made_by(request):
+    """Every test twice: the rows' text made by polars (as from `_POLARS_ROWS` detections),
+    and by Python lists (as below it): the same bytes either way."""
+    before = result_text._POLARS_ROWS
+    result_text._POLARS_ROWS = 0 if request.param == "polars" else 10**9
+    yield request.param
+    result_text._POLARS_ROWS = before
+
+
 def results():
     featured = preset("medium", lanes=3, vehicle_lengths=True, vehicle_classes=True)
     faulty = preset("small", miss_probability=0.1, false_alarm_rate=0.1, duplicate_probability=0.05)
@@ -148,3 +158,18 @@ def test_the_matrix_with_sensors_at_one_position_is_the_matrix_written_cell_by_c
     fast = result.to_matrix_csv()
     monkeypatch.setattr(result_text, "_NEEDS_QUOTES", re.compile(r"|"))  # always cell by cell
     assert fast == result.to_matrix_csv()
+
+
+def test_plain_results_are_written_from_the_columns_not_by_the_plain_encoders(monkeypatch):
+    """The fast writers write what they can (ids of printable ASCII, finite numbers, a float
+    below 1e-4 among them) themselves: the plain encoders are never called for it."""
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the plain encoder was called")
+
+    for result in results()[:5]:
+        expected = (json.dumps(result.to_dict(), indent=2) + "\n", result_json_compact(result))
+        with monkeypatch.context() as patch:
+            patch.setattr(result_text.json, "dumps", refused)
+            patch.setattr(type(result), "to_dict", refused)
+            assert (result_json_text(result), result_json_compact(result)) == expected

@@ -48,11 +48,16 @@ class AssociationResult:
 
     def target_members(self) -> list[IntArray]:
         """Detection indices of each target, ordered by position (then time)."""
-        order = np.lexsort((self.detections.timestamp, self.detections.position, self.groups))
-        sorted_groups = self.groups[order]
-        assigned = order[sorted_groups >= 0]
-        bounds = np.flatnonzero(np.diff(self.groups[assigned])) + 1
-        return np.split(assigned, bounds) if assigned.size else []
+        assigned = np.flatnonzero(self.groups >= 0)
+        if not assigned.size:
+            return []
+        d = self.detections
+        order = assigned[
+            road_order(self.groups[assigned], d.position[assigned], d.timestamp[assigned])
+        ]
+        bounds = (np.flatnonzero(np.diff(self.groups[order])) + 1).tolist()
+        # Slices, not `np.split`, which costs a `swapaxes` per target (20,000 at 10^6).
+        return [order[a:b] for a, b in zip([0, *bounds], [*bounds, order.size], strict=True)]
 
     def target_confidence(self, members: IntArray) -> float | None:
         """The approximate probability that every link of a target is right: the product of
@@ -302,6 +307,24 @@ def build_result(
         effective_params=effective_params,
         link_confidence=link_confidence,
     )
+
+
+def road_order(groups: IntArray, position: FloatArray, timestamp: FloatArray) -> IntArray:
+    """The order `np.lexsort((timestamp, position, groups))` gives (stable: equal rows keep
+    their order), sorted by one integer key, group and position's rank, where lexsort makes
+    three stable passes: twice its speed. Rows of one group at one position (a duplicate, say:
+    few) are then ordered by time among themselves."""
+    distinct, rank = np.unique(position, return_inverse=True)  # -0.0 and 0.0 one rank
+    key = groups.astype(np.int64) * distinct.size + rank.reshape(-1)
+    order = np.argsort(key, kind="stable")
+    keys = key[order]
+    tied = np.flatnonzero(keys[1:] == keys[:-1])
+    if tied.size:
+        in_run = np.zeros(keys.size, dtype=bool)
+        in_run[tied] = in_run[tied + 1] = True
+        runs = order[in_run]  # each run's rows together, in their order
+        order[in_run] = runs[np.lexsort((timestamp[runs], keys[in_run]))]
+    return order
 
 
 def _sensor_columns(d: Detections) -> tuple[list[str], IntArray, bool]:

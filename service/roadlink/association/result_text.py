@@ -27,6 +27,13 @@ import numpy as np
 import orjson
 
 from roadlink.association.csvio import spreadsheet_safe
+from roadlink.association.text_columns import (
+    float_column,
+    has_any,
+    joined_rows,
+    text_column,
+    where,
+)
 
 if TYPE_CHECKING:
     from roadlink.association.result import AssociationResult
@@ -52,21 +59,19 @@ def write_result_json(result: AssociationResult, stream: BinaryIO) -> None:
     """
     holes: list[Any] = []
     document = result.document(_holes_into(holes))
+    rows = _RowTexts(result, _INDENTED)
     try:
-        if not _columns_agree(result):
+        if not rows.agree:
             raise _Disagrees
         for name in ("params", "effective_params", "metrics"):
             if name in document:
                 document[name] = _respelt(document[name])
-        for target in document["targets"]:
-            for key, value in target.items():
-                if key != "detections":
-                    target[key] = _respelt(value)
+        _respell_targets(document["targets"])
     except _Disagrees:
         stream.write((json.dumps(result.to_dict(), indent=2) + "\n").encode())
         return
     text = orjson.dumps(document, option=orjson.OPT_INDENT_2).decode()
-    for chunk in _filled(text, holes, _RowTexts(result, _INDENTED)):
+    for chunk in _filled(text, holes, rows):
         stream.write(chunk.encode())
     stream.write(b"\n")
 
@@ -77,11 +82,12 @@ def result_json_compact(result: AssociationResult) -> str:
     rows' text is joined from the columns into them. orjson's own spelling throughout, so no
     value needs respelling; only where the rows' text would not be orjson's (text that is not
     printable ASCII, a value that is not finite) does orjson write the row objects."""
-    if not _columns_agree(result):
+    rows = _RowTexts(result, _COMPACT)
+    if not rows.agree:
         return orjson.dumps(result.to_dict()).decode()
     holes: list[Any] = []
     text = orjson.dumps(result.document(_holes_into(holes))).decode()
-    return "".join(_filled(text, holes, _RowTexts(result, _COMPACT)))
+    return "".join(_filled(text, holes, rows))
 
 
 def _holes_into(holes: list[Any]) -> Callable[[Any], Any]:
@@ -145,9 +151,11 @@ _COMPACT = _Layout(indented=False, colon=":")
 
 class _RowTexts:
     """The text of the detection rows, as `json.dumps(indent=2)` writes them (or orjson's
-    compact text, by `layout`), from the columns: each column formatted at once, the constant
-    text between them as columns of their own (a text per distinct sensor, with its keys), and
-    all rows joined in one `str.join` (no string per row)."""
+    compact text, by `layout`), from the columns: each column's text made at once, the
+    constant text between them given once, and all rows joined at once. From `_POLARS_ROWS`
+    rows polars makes and joins the columns (`text_columns`: no Python object per value);
+    below, where polars' fixed cost per call (about a millisecond) would outweigh the rows,
+    Python lists do (a paper-size job's result is written in the service's every job)."""
 
     def __init__(self, result: AssociationResult, layout: _Layout) -> None:
         d = result.detections
@@ -155,20 +163,32 @@ class _RowTexts:
         self.layout = layout
         # orjson's compact floats are its own spelling; the indented text is Python's.
         self.spelling = "python" if layout.indented else "orjson"
+        self.polars = len(d) >= _POLARS_ROWS
+        self.ids, self.sensors = self._texts(d.detection_id), self._texts(d.sensor_id)
+        self.agree = _columns_agree(result) and not self._holds(_NOT_PRINTABLE_ASCII)
         # Ids are never None; the constant text around them quotes them, when none needs
         # escaping (else they are JSON strings already).
-        joined = "".join(d.detection_id.tolist()) + "".join(set(d.sensor_id.tolist()))
-        self.quote = "" if '"' in joined or "\\" in joined else '"'
-        self.ids = d.detection_id if self.quote else _json_strings(d.detection_id)
-        sensors = d.sensor_id if self.quote else _json_strings(d.sensor_id)
-        self.sensor_items = sensors.tolist()
-        self.sensor_texts: dict[int, Any] = {}
+        self.quote = '"'
+        if self.agree and self._holds(r'["\\]'):
+            self.quote = ""
+            self.ids = self._texts(_json_strings(d.detection_id))
+            self.sensors = self._texts(_json_strings(d.sensor_id))
         self.features = d.features
         self.linked = (
             None
             if result.link_confidence is None
             else (result.groups >= 0) & ~np.isnan(result.link_confidence)
         )
+
+    def _texts(self, values: Any) -> Any:
+        return text_column(values) if self.polars else values
+
+    def _holds(self, pattern: str) -> bool:
+        """Whether an id or a sensor id holds a match of `pattern`."""
+        if self.polars:
+            return has_any(self.ids, pattern) or has_any(self.sensors, pattern)
+        texts = "".join(self.ids.tolist()) + "".join(set(self.sensors.tolist()))
+        return re.search(pattern, texts) is not None
 
     def text(self, pieces: list[str], holes: list[Any], indent: int) -> str:
         """Each of `pieces` followed by the JSON list of its hole's rows (indices into the
@@ -185,64 +205,69 @@ class _RowTexts:
         for k, (piece, members) in enumerate(zip(pieces, holes, strict=True)):
             lead[start] = (close_list if k else "") + piece + "[" + opening
             start += members.size
-        extra = self._extra(index, inner, close_row)
-        n = index.size
-        # The constant text between the numbers as columns of their own (a list of one string
-        # repeated costs a pointer a row), not attached to each number: a sixth faster.
-        columns = [
+        parts: list[Any] = [
             lead,
-            self.ids[index].tolist(),
-            self._sensor_texts(inner)[index].tolist(),
+            self._gather(self.ids, index),
+            q + "," + layout.key(inner, "sensor_id") + q,
+            self._gather(self.sensors, index),
+            q + "," + layout.key(inner, "position"),
             self._floats(d.position[index]),
-            ["," + layout.key(inner, "velocity")] * n,
+            "," + layout.key(inner, "velocity"),
             self._floats(d.velocity[index]),
-            ["," + layout.key(inner, "timestamp")] * n,
+            "," + layout.key(inner, "timestamp"),
             self._floats(d.timestamp[index]),
-            extra or [close_row] * n,
+            *self._extra(index, inner, close_row),
         ]
-        return _interleaved(columns) + close_list
+        if self.polars:
+            return joined_rows(parts, close_list)
+        return _interleaved([p if isinstance(p, list) else [p] * index.size for p in parts]) + (
+            close_list
+        )
 
-    def _floats(self, values: Any, prefix: str = "", suffix: str = "") -> list[str]:
-        return float_texts(values, prefix, suffix, spelling=self.spelling)
+    def _gather(self, texts: Any, index: Any) -> Any:
+        return texts.gather(index) if self.polars else texts[index].tolist()
 
-    def _sensor_texts(self, inner: int) -> Any:
-        """What follows each detection's id up to its position: its sensor's text (an object
-        per distinct sensor, shared by its rows), at the indent `inner`."""
-        if inner not in self.sensor_texts:
-            q, layout = self.quote, self.layout
-            before = q + "," + layout.key(inner, "sensor_id") + q
-            after = q + "," + layout.key(inner, "position")
-            text = {s: before + s + after for s in set(self.sensor_items)}
-            items = list(map(text.__getitem__, self.sensor_items))
-            self.sensor_texts[inner] = np.array(items, dtype=object)
-        return self.sensor_texts[inner]
+    def _floats(self, values: Any) -> Any:
+        if self.polars:
+            return float_column(values, spelling=self.spelling)
+        return float_texts(values, spelling=self.spelling)
 
-    def _extra(self, index: Any, inner: int, close_row: str) -> list[str]:
-        """What follows a row's timestamp, when it has features or a link's confidence: they,
-        and the row's closing brace."""
-        d = self.result.detections
-        if not self.features and self.linked is None:
-            return []
-        extra = np.full(index.size, "", dtype=object)
-        for name in self.features:  # rare beside a million rows: a string per row is fine
-            values = getattr(d, name)[index]
-            if name == "lane":
-                cells = np.array([str(v) for v in values.tolist()], dtype=object)
-                cells[values < 0] = "null"
-            elif name == "length":
-                cells = np.array(self._floats(values), dtype=object)
-                cells[np.isnan(values)] = "null"
-            else:
-                cells = _json_strings(values)
-            extra = extra + ("," + self.layout.key(inner, name)) + cells
-        ending: Any = np.full(index.size, close_row, dtype=object)
-        if self.linked is not None and self.result.link_confidence is not None:
-            prefix = "," + self.layout.key(inner, "link_confidence")
-            links = self._floats(self.result.link_confidence[index], prefix, close_row)
-            ending = np.where(self.linked[index], np.array(links, dtype=object), ending)
-        # Without features (the common case) no string is made here: the texts are taken.
-        extra = extra + ending if self.features else ending
-        return list(extra.tolist())
+    def _extra(self, index: Any, inner: int, close_row: str) -> list[Any]:
+        """What follows a row's timestamp: its features, when the input has them, its link's
+        confidence where it has one, and the row's closing brace."""
+        extra: list[Any] = []
+        if self.features:  # rare beside a million rows: a string per row is fine
+            cells = np.full(index.size, "", dtype=object)
+            for name in self.features:
+                cells = cells + ("," + self.layout.key(inner, name)) + self._feature(name, index)
+            extra.append(cells.tolist())
+        if self.linked is None or self.result.link_confidence is None:
+            return [*extra, close_row]
+        linked = self.linked[index]
+        links = np.where(linked, self.result.link_confidence[index], 0.0)  # no NaN to spell
+        prefix = "," + self.layout.key(inner, "link_confidence")
+        if self.polars:
+            return [*extra, where(linked, [prefix, self._floats(links), close_row], close_row)]
+        texts = np.array(float_texts(links, prefix, close_row, self.spelling), dtype=object)
+        return [*extra, np.where(linked, texts, close_row).tolist()]
+
+    def _feature(self, name: str, index: Any) -> Any:
+        """A feature's cells of the rows `index`, as JSON (null where not reported)."""
+        values = getattr(self.result.detections, name)[index]
+        if name == "lane":
+            cells = np.array([str(v) for v in values.tolist()], dtype=object)
+            cells[values < 0] = "null"
+        elif name == "length":
+            cells = np.array(float_texts(values, spelling=self.spelling), dtype=object)
+            cells[np.isnan(values)] = "null"
+        else:
+            cells = _json_strings(values)
+        return cells
+
+
+# From this many detections the rows' text is made by polars (see `_RowTexts`); a test sets it
+# to 0 and to a billion, to check the two ways write the same bytes.
+_POLARS_ROWS = 10_000
 
 
 def _interleaved(columns: list[list[str]]) -> str:
@@ -294,17 +319,32 @@ def _respelt(value: Any) -> Any:
     raise _Disagrees
 
 
+def _respell_targets(targets: list[dict[str, Any]]) -> None:
+    """`_respelt` each target's values but its detections: its name (`T1`, printable ASCII)
+    as it is, its confidences (20,000 at 10^6 detections) checked at once and respelt only
+    when one would need it."""
+    confidences = [t["confidence"] for t in targets if "confidence" in t]
+    values = np.array(confidences, dtype=float)
+    common = bool(np.all(np.isfinite(values) & ((values == 0) | (np.abs(values) >= 1e-4))))
+    for target in targets:
+        for key, value in target.items():
+            if key not in ("target", "detections") and not (key == "confidence" and common):
+                target[key] = _respelt(value)
+
+
 def _columns_agree(result: AssociationResult) -> bool:
-    """Whether the detection rows' values are written alike by the plain encoder and here:
-    finite numbers, printable ASCII text."""
+    """Whether the detection rows' numbers and classes are written alike by the plain encoder
+    and here: finite numbers, printable ASCII text (the ids: see `_RowTexts`)."""
     d = result.detections
     numbers = [d.position, d.velocity, d.timestamp, d.length[~np.isnan(d.length)]]
     if result.link_confidence is not None:
         numbers.append(result.link_confidence[~np.isnan(result.link_confidence)])
-    texts = [d.detection_id, d.sensor_id, d.vehicle_class]
-    return all(bool(np.all(np.isfinite(v))) for v in numbers) and all(
-        _plain_text("".join(filter(None, v.tolist()))) for v in texts
-    )
+    classes = _plain_text("".join(filter(None, set(d.vehicle_class.tolist()))))
+    return classes and all(bool(np.all(np.isfinite(v))) for v in numbers)
+
+
+# What `_plain_text` refuses, as a pattern.
+_NOT_PRINTABLE_ASCII = r"[^ -~]"
 
 
 def _plain_text(text: str) -> bool:

@@ -1,0 +1,77 @@
+"""Columns of text made and joined by polars, for the result writers (`result_text`): a float
+column as its numbers' text, and rows of text joined from columns and constant texts, without a
+Python object per value.
+
+polars writes a float as orjson does, and both as Python's `repr` except below 1e-4 in
+magnitude (`1e-5` against `1e-05`) and where not finite: there `repr` is written in
+(`tests/association/test_text_columns.py` checks both on hundreds of thousands of hard values).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import polars as pl
+
+# polars is imported by each function, on the first result written: every process imports the
+# core, and few write a result (a small job's worker need not pay polars' import).
+
+
+def float_column(values: np.ndarray, spelling: str = "python") -> pl.Series:
+    """The text of each float of `values`, as a polars String column: `repr`'s
+    (`spelling="python"`), or orjson's (`"orjson"`, for finite values only)."""
+    import polars as pl
+
+    array = np.ascontiguousarray(values, dtype=np.float64)
+    texts = pl.Series(array).cast(pl.String)
+    if spelling == "python":
+        odd = np.flatnonzero(~np.isfinite(array) | ((np.abs(array) < 1e-4) & (array != 0)))
+        if odd.size:
+            texts = texts.scatter(odd, [repr(v) for v in array[odd].tolist()])
+    return texts
+
+
+def text_column(values: Any) -> pl.Series:
+    """Python strs or None (a list or an object array) as a polars String column."""
+    import polars as pl
+
+    return pl.Series(values, dtype=pl.String)
+
+
+def has_any(texts: pl.Series, pattern: str) -> bool:
+    """Whether a text of `texts` holds a match of the regular expression `pattern`."""
+    return bool(texts.str.contains(pattern).any())
+
+
+def joined_rows(parts: list[Any], tail: str = "") -> str:
+    """Each row's parts (columns of one length, as polars Series or lists of Python strs,
+    expressions over them, or texts the same in every row) one after another, row after row,
+    then `tail`, as one text."""
+    import polars as pl
+
+    joined = pl.concat_str(_expressions(parts)).str.join("") + pl.lit(tail)
+    return str(pl.select(joined).item())
+
+
+def where(mask: np.ndarray, then: list[Any], otherwise: str) -> pl.Expr:
+    """Where `mask` holds, the text of the parts `then` (as `joined_rows` takes them) one
+    after another; elsewhere the text `otherwise`."""
+    import polars as pl
+
+    joined = pl.concat_str(_expressions(then))
+    condition = pl.lit(pl.Series(mask, dtype=pl.Boolean))
+    return pl.when(condition).then(joined).otherwise(pl.lit(otherwise))
+
+
+def _expressions(parts: list[Any]) -> list[pl.Expr]:
+    import polars as pl
+
+    return [
+        part
+        if isinstance(part, pl.Expr)
+        else pl.lit(text_column(part) if isinstance(part, list) else part)
+        for part in parts
+    ]

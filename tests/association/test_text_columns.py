@@ -1,0 +1,64 @@
+"""polars' text of floats is Python's `repr` (or orjson's), and rows joined from columns and
+constant texts are the rows' text, as the result writers need them byte for byte."""
+
+import numpy as np
+import orjson
+import polars as pl
+
+from roadlink.association.text_columns import (
+    float_column,
+    has_any,
+    joined_rows,
+    text_column,
+    where,
+)
+
+
+def hard_floats() -> np.ndarray:
+    """Values whose shortest text is hard: every bit pattern at random, every magnitude, the
+    bounds of the spellings (1e-4, 1e16) and of the doubles."""
+    rng = np.random.default_rng(0)
+    bits = rng.integers(0, 2**64 - 1, 200_000, dtype=np.uint64)
+    edges = [0.0, -0.0, 1e-4, -1e-4, 9.999999999999999e-05, 1e16, -1e16, 9999999999999998.0]
+    edges += [5e-324, 1.7976931348623157e308, 2.0**63, 1e15 + 0.5, 0.1 + 0.2, 1 / 3]
+    values = np.concatenate(
+        [
+            edges,
+            np.frombuffer(bits.tobytes(), dtype=np.float64),
+            rng.standard_normal(100_000) * 10.0 ** rng.integers(-320, 308, 100_000),
+            np.round(rng.uniform(0, 1000, 10_000), 1),
+        ]
+    )
+    return values[np.isfinite(values)]
+
+
+def test_float_column_is_repr_of_each_value():
+    values = hard_floats()
+    values = np.concatenate([values, [np.inf, -np.inf, np.nan, 1e-5, -1.5e-7]])
+    assert float_column(values).to_list() == [repr(v) for v in values.tolist()]
+
+
+def test_float_column_in_orjson_spelling_is_orjsons():
+    values = hard_floats()
+    expected = [orjson.dumps(v).decode() for v in values.tolist()]
+    assert float_column(values, spelling="orjson").to_list() == expected
+
+
+def test_joined_rows_interleave_columns_and_constant_texts():
+    ids = text_column(["a", "bb", "c"])
+    numbers = float_column(np.array([1.0, 1e-5, 2.5]))
+    parts = ["<", ids, "=", numbers, pl.lit(">")]
+    assert joined_rows(parts, "!") == "<a=1.0><bb=1e-05><c=2.5>!"
+
+
+def test_where_takes_the_text_where_the_mask_holds():
+    chosen = where(np.array([True, False, True]), ["<", text_column(["x", "y", "z"])], "-")
+    assert joined_rows([chosen]) == "<x-<z"
+
+
+def test_has_any_finds_a_pattern_in_any_text():
+    texts = text_column(["plain", None, 'quo"te'])
+    assert has_any(texts, '"')
+    assert not has_any(texts, r"\\")
+    assert has_any(text_column(["tab\there"]), r"[^ -~]")
+    assert not has_any(text_column(["printable ascii ~"]), r"[^ -~]")
