@@ -4,8 +4,13 @@ chain of detections read both ways."""
 import numpy as np
 import pytest
 
-from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment import (
+    AssignmentAssociator,
+    AssignmentParams,
+    tracks,
+)
 from roadlink.association.associators.assignment.learning import learn_segments
+from roadlink.association.associators.assignment.matching import match
 from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import refine_boundaries
@@ -111,6 +116,38 @@ def test_a_pass_that_foresees_tracks_builds_what_it_builds_without(
     for expected in (first, plain, cut, np.full_like(plain, -1)):
         foreseeing = build_tracks(s, model, params, leader, None, 0.0, 1.0, expected=expected)
         assert np.array_equal(foreseeing, plain)
+
+
+@pytest.mark.parametrize("traffic", [{}, FAULTS, FEATURES])
+@pytest.mark.parametrize(
+    ("name", "seed"), [("medium", 0), ("medium", 1), ("small", 2), ("congested", 0)]
+)
+def test_a_pass_that_prices_every_link_at_once_links_what_it_links_sensor_by_sensor(
+    traffic: dict[str, object], name: str, seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Every sensor's links gated at once, the whole associator: with each link's affordability,
+    # edges and anchor's bonus worked out once a pass (`Priced`), or sensor by sensor as before
+    # (`Priced.of` made to offer none), every matching of the passes is given the same
+    # candidates at the same costs, to the last bit, and the groups and link confidences are
+    # the same.
+    d = simulate(preset(name, **traffic), seed=seed).detections
+    params = AssignmentParams(gate_cost=40.0)  # a wider gate: more candidates near the edges
+    seen: list[list[tuple[np.ndarray, ...]]] = [[], []]
+    for run in seen:
+
+        def recorded(a: np.ndarray, b: np.ndarray, cost: np.ndarray, gate: float) -> object:
+            run.append((a.copy(), b.copy(), cost.copy()))  # noqa: B023 (this run's record)
+            return match(a, b, cost, gate)
+
+        monkeypatch.setattr(tracks, "match", recorded)
+        associator = AssignmentAssociator(params)
+        run.append((associator.group(d), associator.link_confidence))
+        monkeypatch.setattr(tracks.Priced, "of", lambda *args: None)
+    assert len(seen[0]) == len(seen[1]) > 10
+    for at_once, apart in zip(seen[0], seen[1], strict=True):
+        assert all(
+            np.array_equal(x, y, equal_nan=True) for x, y in zip(at_once, apart, strict=True)
+        )
 
 
 @pytest.mark.parametrize("window", [0.5, 5.0, 60.0])

@@ -12,6 +12,7 @@ from roadlink.association.associators.assignment.anchors import (
     lane_order_anchors,
     weigh_anchors,
 )
+from roadlink.association.associators.assignment.arrays import filled, same
 from roadlink.association.associators.assignment.confidence import (
     cut_weak_links,
     link_confidence,
@@ -116,7 +117,7 @@ def link_and_learn(
             sweep if final and params.refine_sweeps > 0 else None,
             learned_from,
         )
-        if learned_from is not None and np.array_equal(track, learned_from):
+        if learned_from is not None and same(track, learned_from):
             if passes.progress:
                 passes.progress(rounds / passes.total)
             break
@@ -162,7 +163,7 @@ def repair_and_judge(
     changes none leaves every later sweep the same work, so the loop ends there with its
     judging (on a paper-size batch the first sweep usually changes nothing). Every sweep takes
     its gating and edges from `setup` where the forward pass worked them out with this model."""
-    confidence = np.full(track.size, np.nan)
+    confidence = filled(track.size, np.nan)
     for sweep in range(params.refine_sweeps):
         last = sweep + 1 == params.refine_sweeps
         track, changed = refine_boundaries(

@@ -8,6 +8,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import numpy.typing as npt
 
+from roadlink.association.associators.assignment.arrays import filled
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import FASTEST_SHARE, AssignmentParams
 from roadlink.association.associators.assignment.sensors import Sensors, travel_time
@@ -349,7 +350,7 @@ class EverySensor:
         # Each link's own cost, once for the pass (numpy's fixed cost per call, not the links,
         # is a paper-size batch's work: a dozen calls for every sensor otherwise).
         pairs.own = pairs.own_cost(model, params)
-        return cls(pairs, np.searchsorted(s.sensor[pairs.b], np.arange(n_sensors + 1)), n)
+        return cls(pairs, s.sensor[pairs.b].searchsorted(np.arange(n_sensors + 1)), n)
 
     def narrowed(
         self, s: Sensors, model: SegmentModel, params: AssignmentParams, gate: float
@@ -372,22 +373,30 @@ class EverySensor:
         keep &= lo <= arrival
         keep &= arrival <= hi
         kept = pairs.take(keep)
-        bounds = np.searchsorted(s.sensor[kept.b], np.arange(s.positions.size + 1))
+        bounds = s.sensor[kept.b].searchsorted(np.arange(s.positions.size + 1))
         return EverySensor(kept, bounds, self.detections)
 
     def into(self, q: int, a: IntArray, among: BoolArray | None = None) -> Pairs:
         """`gated_pairs` from detections a (within reach of q) to sensor q (to those `among`)."""
+        place = self.places(q, a, among)
+        return self.pairs.take(place) if place.size else Pairs.none()
+
+    def places(
+        self, q: int, a: IntArray, among: BoolArray | None = None, usable: BoolArray | None = None
+    ) -> IntArray:
+        """Where `into`'s links lie in `pairs`, in its order; only `usable` ones, where given."""
         lo, hi = int(self.bounds[q]), int(self.bounds[q + 1])
-        rank = np.full(self.detections, -1)
+        rank = filled(self.detections, -1, np.int64)
         rank[a] = np.arange(a.size)
         order = rank[self.pairs.a[lo:hi]]
         keep = order >= 0
         if among is not None:
             keep &= among[self.pairs.b[lo:hi]]
-        kept = np.flatnonzero(keep)
-        if kept.size == 0:
-            return Pairs.none()
-        return self.pairs.take(lo + kept[np.argsort(order[kept], kind="stable")])
+        if usable is not None:
+            keep &= usable[lo:hi]
+        kept = keep.nonzero()[0]
+        place: IntArray = lo + kept[order[kept].argsort(kind="stable")]
+        return place
 
     def across(self, k: int, end: int, tails: IntArray, among: BoolArray) -> Pairs:
         """`into(q, tails, among)` for every q from k to end - 1, one after another, where the
@@ -397,7 +406,7 @@ class EverySensor:
         is_tail = np.zeros(self.detections, dtype=bool)
         is_tail[tails] = True
         keep = is_tail[self.pairs.a[lo:hi]] & among[self.pairs.b[lo:hi]]
-        return self.pairs.take(lo + np.flatnonzero(keep))
+        return self.pairs.take(lo + keep.nonzero()[0])
 
 
 def _inverse_speed_range(s: Sensors) -> tuple[FloatArray, FloatArray]:
@@ -425,8 +434,8 @@ def _arrivals_between(
         ends.imag[0] = lo
         ends.imag[1] = hi
         if not np.isnan(ends.imag).any():
-            first = np.searchsorted(keys, ends[0], side="left")
-            last = np.searchsorted(keys, ends[1], side="right")
+            first = keys.searchsorted(ends[0], side="left")
+            last = keys.searchsorted(ends[1], side="right")
             return first, np.maximum(last - first, 0)
     n, m = s.time.size, q.size
     sensor = np.concatenate([s.sensor[s.order], q, q])

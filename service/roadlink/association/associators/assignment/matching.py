@@ -5,6 +5,8 @@ A generic solver: it knows edges and their costs, nothing of detections or track
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -70,14 +72,14 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     (LAPJVsp's shortest-path phase costs in proportion to the graph for every free row, so one
     huge call would be quadratic).
     """
-    keep = np.flatnonzero(cost < gate)  # places, once: quicker than the mask three times
+    keep = (cost < gate).nonzero()[0]  # places, once: quicker than the mask three times
     left, right, cost = left[keep], right[keep], cost[keep]
     if left.size == 0:
         return left, right
     if 2 * left.size <= DENSE_NODES and _distinct(left) and _distinct(right):
         # No two edges share a node, and each beats leaving its ends alone: all are taken (by
         # left, as the dense assignment returns them; the lefts' ranks sort as the lefts).
-        by_left = np.argsort(left)
+        by_left = left.argsort()
         return left[by_left], right[by_left]
     lu, li = unique_inverse(left)
     ru, ri = unique_inverse(right)
@@ -125,18 +127,26 @@ def _match_dense(
     at no cost, which always leaves exactly as many free dummy rows as free dummy columns.
     """
     size = n_l + n_r
-    square = np.full((size, size), np.inf)
+    square = np.empty((size, size))  # np.full's array, without its Python-level steps
+    square.fill(np.inf)
     square[li, ri] = cost
     # The dummies' diagonals, (l, n_r + l) and (n_l + r, r), as strided runs of the flat square.
     flat = square.reshape(-1)
     flat[n_r : n_r + n_l * (size + 1) : size + 1] = alone
     flat[n_l * size : n_l * size + n_r * (size + 1) : size + 1] = alone
     square[n_l:, n_r:] = 0.0
-    from scipy.optimize import linear_sum_assignment  # on first use, as in `match`
-
-    row, col = linear_sum_assignment(square)
+    row, col = _dense_solver()(square)
     real = (row < n_l) & (col < n_r)
     return row[real], col[real]
+
+
+@functools.cache
+def _dense_solver() -> Callable[[Costs], tuple[Nodes, Nodes]]:
+    """scipy's dense assignment, imported on first use (as in `match`), once: an import
+    statement costs a microsecond each time, and a paper-size batch makes some thirty."""
+    from scipy.optimize import linear_sum_assignment
+
+    return linear_sum_assignment
 
 
 def _match_batches(

@@ -192,8 +192,8 @@ class FewPairs:
         ):
             lo, hi = int(s.start[qk]), int(s.start[qk + 1])
             times = s.sorted_time[lo:hi]
-            first[lo_a:hi_a] = np.searchsorted(times, earliest[lo_a:hi_a], side="right")
-            count[lo_a:hi_a] = np.searchsorted(times, latest[lo_a:hi_a]) - first[lo_a:hi_a]
+            first[lo_a:hi_a] = times.searchsorted(earliest[lo_a:hi_a], side="right")
+            count[lo_a:hi_a] = times.searchsorted(latest[lo_a:hi_a]) - first[lo_a:hi_a]
             first[lo_a:hi_a] += lo
             span_of_time = float(times[-1] - times[0])
             rates.append((hi - lo - 1) / span_of_time if span_of_time > 0 else 0.0)
@@ -368,7 +368,7 @@ class BiasHistogram:
 
     def centre(self) -> float:
         """The log bias at the highest excess: the median of the values near it."""
-        best = int(np.argmax(self.excess))
+        best = int(self.excess.argmax())
         peak = 0.5 * (PRIOR_BINS[best] + PRIOR_BINS[best + 1])
         near = self.values[np.abs(self.values - peak) <= PRIOR_PEAK_BINS * PRIOR_BIN]
         return float(median(near)) if near.size else float(peak)

@@ -9,6 +9,7 @@ from operator import itemgetter
 import numpy as np
 
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
+from roadlink.association.associators.assignment.arrays import same
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import EverySensor, Gate, Pairs
@@ -166,7 +167,7 @@ class Unchanged:
                 # The boundary keeps its links if it links every tail that has a successor,
                 # to that successor, and no other.
                 linked_a, linked_b = match(here.a, here.b, cost[lo:hi], self.gate)
-                if linked_a.size != crossing[i] or not np.array_equal(nxt[linked_a], linked_b):
+                if linked_a.size != crossing[i] or not same(nxt[linked_a], linked_b):
                     return None
             judged.append((here, cost[lo:hi], nxt[here.a] == here.b))
         return judged

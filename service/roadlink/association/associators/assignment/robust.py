@@ -95,9 +95,10 @@ def run_medians(values: FloatArray, sizes: IntArray) -> FloatArray | None:
     if sizes.max() > SHORT_ARRAY or not np.isfinite(values).all():
         return None
     n_runs = sizes.size
-    row = np.arange(values.shape[0]) - np.repeat(np.cumsum(sizes) - sizes, sizes)
-    padded = np.full((n_runs, int(sizes.max()), *values.shape[1:]), np.inf)
-    padded[np.repeat(np.arange(n_runs), sizes), row] = values
+    row = np.arange(values.shape[0]) - (sizes.cumsum() - sizes).repeat(sizes)
+    padded = np.empty((n_runs, int(sizes.max()), *values.shape[1:]))
+    padded.fill(np.inf)
+    padded[np.arange(n_runs).repeat(sizes), row] = values
     padded.sort(axis=1)
     mid = sizes // 2
     upper = padded[np.arange(n_runs), mid]

@@ -105,7 +105,7 @@ class Sensors:
         track holds at most one detection per sensor, so no two keys are equal, and a stable
         sort (timsort, quicker on the runs of a track's detections) gives the same order."""
         key = track[detections] * self.positions.size + self.sensor[detections]
-        return detections[np.argsort(key, kind="stable")]
+        return detections[key.argsort(kind="stable")]
 
     def typical_travel_time(self) -> float | None:
         """The median kinematic travel time between neighbouring sensors at their median speeds
@@ -113,7 +113,8 @@ class Sensors:
         if self.positions.size < 2:
             return None
         speeds = self.median_speed
-        return float(np.median(travel_time(np.diff(self.positions), speeds[:-1], speeds[1:])))
+        gaps = self.positions[1:] - self.positions[:-1]  # np.diff
+        return median(travel_time(gaps, speeds[:-1], speeds[1:]))
 
 
 def arrange(detections: Detections, params: AssignmentParams) -> Sensors:

@@ -9,7 +9,13 @@ import numpy as np
 import numpy.typing as npt
 
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
-from roadlink.association.associators.assignment.costs import Level, affordable, link_cost
+from roadlink.association.associators.assignment.arrays import filled, same
+from roadlink.association.associators.assignment.costs import (
+    Level,
+    affordable,
+    affordable_links,
+    link_cost,
+)
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import (
     GATE_AT_ONCE,
@@ -86,12 +92,12 @@ class TrackLevel:
 def detection_level(s: Sensors, b: IntArray) -> Level:
     """The level of detections b, each alone (a track that starts with it)."""
     if s.features is None or not s.features.has_length():
-        return Level(s.relative_speed[b], np.ones(b.size))
+        return Level(s.relative_speed[b], filled(b.size, 1.0))
     log_length = s.features.log_length[b]
     measured = np.isfinite(log_length)
     return Level(
         s.relative_speed[b],
-        np.ones(b.size),
+        filled(b.size, 1.0),
         np.where(measured, log_length, 0.0),
         measured.astype(np.float64),
     )
@@ -171,7 +177,7 @@ def build_tracks(
     With `expected` tracks (the round before's), the candidates and costs of every sensor are
     worked out at once as if the pass built those (`Foreseen`), as long as it does."""
     n_sensors = s.positions.size
-    track = np.full(s.time.size, -1, dtype=np.int64)
+    track = filled(s.time.size, -1, np.int64)
     level = TrackLevel.start(s, model.pace)
     tail = np.zeros(0, dtype=np.int64)  # last detection of every track, by track index
     if sweep is None:
@@ -187,6 +193,7 @@ def build_tracks(
     if expected is not None and gate.every is not None:
         foreseen = Foreseen.of(s, model, params, gate.every, edges, anchor, expected)
     made: list[tuple[IntArray, IntArray]] = []  # the links made, while foreseen
+    priced = None  # every link's own prices, once a sensor is linked on its own (`Priced`)
     # What an anchor can take off a link's cost at most (`costs.affordable`; inf: unknown).
     most_bonus = 0.0 if anchor is None else float(anchor.bonus.max(initial=0.0))
     most_bonus = most_bonus if np.isfinite(most_bonus) else np.inf
@@ -194,8 +201,20 @@ def build_tracks(
         linked_b = np.zeros(0, dtype=np.int64)
         if q > 0 and tail.size:
             if foreseen is None:
+                if priced is None and gate.every is not None:
+                    priced = Priced.of(gate, gate.every, edges, (anchor, most_bonus))
                 linked_b = _extend_tracks(
-                    s, model, params, gate, edges, q, track, tail, level, (anchor, most_bonus)
+                    s,
+                    model,
+                    params,
+                    gate,
+                    edges,
+                    q,
+                    track,
+                    tail,
+                    level,
+                    (anchor, most_bonus),
+                    priced,
                 )
             else:
                 pairs, cost = foreseen.at(q)
@@ -206,9 +225,7 @@ def build_tracks(
         born = _births(s.members(q), linked_b, track, copies)
         track[born] = tail.size + np.arange(born.size)
         tail = np.concatenate([tail, born])
-        if foreseen is not None and not np.array_equal(
-            track[s.members(q)], foreseen.expected[s.members(q)]
-        ):
+        if foreseen is not None and not same(track[s.members(q)], foreseen.expected[s.members(q)]):
             # Not the tracks foreseen: on from here sensor by sensor, with the levels of the
             # tracks made so far.
             foreseen = None
@@ -253,9 +270,9 @@ class Foreseen:
         # The open tails before sensor q: a track's last detection before it, within reach
         # (every gated link is); by track index, as `EverySensor.into` orders them.
         keep = (expected[a] >= 0) & ((nxt[a] < 0) | (s.sensor[np.maximum(nxt[a], 0)] >= q))
-        kept = np.flatnonzero(keep)
+        kept = keep.nonzero()[0]
         key = q[kept] * (int(expected.max(initial=0)) + 1) + expected[a[kept]]
-        pairs = gated.take(kept[np.argsort(key, kind="stable")])
+        pairs = gated.take(kept[key.argsort(kind="stable")])
         level = TrackLevel.start(s, model.pace)
         for sensor in range(1, s.positions.size):
             m = s.members(sensor)
@@ -264,13 +281,49 @@ class Foreseen:
         cost = link_cost(params, model, pairs, level.of(pairs.a), detection_level(s, pairs.b), s)
         cost -= anchor_bonus(pairs, anchor)
         cost += edges.cost(pairs)
-        bounds = np.searchsorted(s.sensor[pairs.b], np.arange(s.positions.size + 1))
+        bounds = s.sensor[pairs.b].searchsorted(np.arange(s.positions.size + 1))
         return cls(expected, pairs, cost, bounds.tolist())
 
     def at(self, q: int) -> tuple[Pairs, FloatArray]:
         """Sensor q's candidates and their costs."""
         lo, hi = self.bounds[q], self.bounds[q + 1]
         return self.pairs.part(lo, hi), self.cost[lo:hi]
+
+
+@dataclass(frozen=True)
+class Priced:
+    """What a forward pass's links cost besides their tracks' terms, for every link gated at
+    once (`EverySensor`): whether it is `affordable` (`costs.affordable_links`; None: every
+    one), the window's `edges` and the anchor's `bonus` (None: no anchors). Each is a link's
+    own, so worked out once for the pass: the same numbers as sensor by sensor, where numpy's
+    fixed cost of a dozen calls a sensor was the work."""
+
+    every: EverySensor
+    affordable: BoolArray | None
+    edges: FloatArray
+    bonus: FloatArray | None
+
+    @classmethod
+    def of(
+        cls,
+        gate: Gate,
+        every: EverySensor,
+        edges: WindowEdges,
+        anchors: tuple[Anchors | None, float],
+    ) -> Priced:
+        """The prices of the links `gate` gated at once (`every`, its `Gate.every`)."""
+        anchor, most_bonus = anchors
+        own = every.pairs.own_cost(gate.model, gate.params)
+        usable = affordable_links(gate.params, gate.model, own, gate.s, most_bonus)
+        bonus = None if anchor is None else anchor_bonus(every.pairs, anchor)
+        return cls(every, usable, edges.cost(every.pairs), bonus)
+
+    def add_to(self, cost: FloatArray, place: IntArray) -> None:
+        """Add to the costs of the links at `place` what `_extend_tracks` adds (less an
+        anchor's bonus, which is 0 without anchors: subtracting 0 changes no number)."""
+        if self.bonus is not None:
+            cost -= self.bonus[place]
+        cost += self.edges[place]
 
 
 def _extend_tracks(
@@ -284,23 +337,34 @@ def _extend_tracks(
     tail: IntArray,
     level: TrackLevel,
     anchors: tuple[Anchors | None, float],
+    priced: Priced | None = None,
 ) -> IntArray:
     """Link the open tracks (those whose last detection lies within `max_skip` missed sensors)
     to sensor q's detections, one to one at least cost; the detections linked. A link pays for
     the window's edges (`edges.WindowEdges`); an anchored one costs its bonus less (`anchors`:
-    the anchors, and their largest bonus)."""
+    the anchors, and their largest bonus). With `priced` (every sensor's links gated at once),
+    the candidates and what their costs add for the edges and anchors are taken from there."""
     anchor, most_bonus = anchors
     open_tails = tail[s.sensor[tail] >= q - 1 - params.max_skip]
-    pairs = gate.pairs(open_tails, q)
-    if pairs.a.size:
-        # Links that cost at least the gate whatever their other terms: the matching drops them.
-        pairs = affordable(params, model, pairs, s, most_bonus)
+    if priced is None:
+        pairs = gate.pairs(open_tails, q)
+        if pairs.a.size:
+            # Links that cost at least the gate whatever their other terms: the matching drops
+            # them.
+            pairs = affordable(params, model, pairs, s, most_bonus)
+        place = None
+    else:
+        place = priced.every.places(q, open_tails, usable=priced.affordable)
+        pairs = priced.every.pairs.take(place)
     if not pairs.a.size:
         return np.zeros(0, dtype=np.int64)
     a, b = pairs.a, pairs.b
     cost = link_cost(params, model, pairs, level.of(a), detection_level(s, b), s)
-    cost -= anchor_bonus(pairs, anchor)
-    cost += edges.cost(pairs)
+    if priced is None or place is None:
+        cost -= anchor_bonus(pairs, anchor)
+        cost += edges.cost(pairs)
+    else:
+        priced.add_to(cost, place)
     linked_a, linked_b = match(a, b, cost, params.gate_cost)
     level.extend(s, linked_a, linked_b, model.pace)
     track[linked_b] = track[linked_a]
@@ -330,9 +394,9 @@ def _births(
 def successors(s: Sensors, track: IntArray) -> tuple[IntArray, IntArray]:
     """The next and previous detection of every detection in its track (-1 = none)."""
     n = track.size
-    nxt = np.full(n, -1, dtype=np.int64)
-    prv = np.full(n, -1, dtype=np.int64)
-    assigned = np.flatnonzero(track >= 0)
+    nxt = filled(n, -1, np.int64)
+    prv = filled(n, -1, np.int64)
+    assigned = (track >= 0).nonzero()[0]
     chain = s.by_track(assigned, track)
     same = track[chain[1:]] == track[chain[:-1]]
     nxt[chain[:-1][same]] = chain[1:][same]
@@ -342,7 +406,7 @@ def successors(s: Sensors, track: IntArray) -> tuple[IntArray, IntArray]:
 
 def tracks_from_links(s: Sensors, prv: IntArray, in_track: BoolArray) -> IntArray:
     """Track index of every detection from its predecessor links (-1 where not in a track)."""
-    track = np.full(prv.size, -1, dtype=np.int64)
+    track = filled(prv.size, -1, np.int64)
     count = 0
     for k in range(s.positions.size):
         members = s.members(k)
