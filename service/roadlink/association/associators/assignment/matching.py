@@ -101,6 +101,51 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     return lu[np.concatenate([li[alone], *taken_l])], ru[np.concatenate([ri[alone], *taken_r])]
 
 
+# How much cheaper each chosen edge must be than every rival at its nodes, and than leaving its
+# ends alone, for `sure_matchings` to call it certain: far beyond a dense assignment's rounding
+# (~1e-13 on costs of a gate's size) and the sparse one's quantum (1 / COST_QUANTUM_INVERSE),
+# so that no solver's ties or rounding could prefer another matching.
+SURE_MARGIN = 8.0 / COST_QUANTUM_INVERSE
+
+
+def sure_matchings(
+    left: Nodes, right: Nodes, cost: Costs, group: Nodes, chosen: Mask, gate: float, groups: int
+) -> Mask:
+    """For `groups` independent matchings (edge i belongs to matching `group[i]`; node ids are a
+    matching's own), whether `match` of each surely takes exactly its `chosen`
+    edges under the gate, so that it need not be solved.
+
+    It does where the chosen edges share no node, every node with an edge under the gate has a
+    chosen one, and each chosen edge beats by SURE_MARGIN every other edge at its nodes and
+    leaving its ends alone (the gate): then every node fares strictly better in the chosen
+    matching than in any other (an edge's cost split between its ends, gate / 2 for a node
+    alone), which is the one optimum. A paper-size batch's forward pass that rebuilds the round
+    before's tracks, and a sweep that keeps its links, are mostly such matchings."""
+    n_groups = groups
+    under = cost < gate
+    chosen = chosen & under
+    width = int(max(left.max(initial=-1), right.max(initial=-1))) + 1
+    left_key = group * width + left
+    right_key = group * width + right
+    at_left = np.empty(n_groups * width)  # the chosen edge's cost at each node, NaN: none
+    at_left.fill(np.nan)
+    at_right = at_left.copy()
+    at_left[left_key[chosen]] = cost[chosen]
+    at_right[right_key[chosen]] = cost[chosen]
+    # Every other edge under the gate costs more than the chosen ones at both its ends (NaN,
+    # a node without a chosen edge, compares false).
+    rival = under & ~chosen
+    ok = ~rival | (
+        (cost > at_left[left_key] + SURE_MARGIN) & (cost > at_right[right_key] + SURE_MARGIN)
+    )
+    ok &= ~chosen | (cost < gate - SURE_MARGIN)
+    # No node in two chosen edges.
+    ok &= ~chosen | (np.bincount(left_key[chosen], minlength=at_left.size)[left_key] == 1)
+    ok &= ~chosen | (np.bincount(right_key[chosen], minlength=at_left.size)[right_key] == 1)
+    sure: Mask = np.bincount(group[~ok], minlength=n_groups) == 0
+    return sure
+
+
 def _component_batches(
     shared: Nodes, edge_part: Nodes, edges_in_part: Nodes
 ) -> tuple[Nodes, Nodes]:

@@ -13,7 +13,11 @@ from roadlink.association.associators.assignment.arrays import same
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import EverySensor, Gate, Pairs
-from roadlink.association.associators.assignment.matching import chosen_marginals, match
+from roadlink.association.associators.assignment.matching import (
+    chosen_marginals,
+    match,
+    sure_matchings,
+)
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import incoming_pace, outgoing_pace
 from roadlink.association.associators.assignment.params import (
@@ -159,17 +163,24 @@ class Unchanged:
         cost -= anchor_bonus(pairs, self.anchor)
         cost += self.edges.cost(pairs) + self.fragment_ends(boundary, links, pairs)
         cuts = np.searchsorted(boundary, np.arange(1, n_sensors + 1)).tolist()
+        kept = nxt[pairs.a] == pairs.b
+        # Boundaries whose matching surely keeps the links (by k, from 0), unsolved.
+        sure = sure_matchings(pairs.a, pairs.b, cost, boundary, kept, self.gate, n_sensors)
         judged: list[Judged] = []
         for i in np.flatnonzero((tails > 0) & (heads > 0)).tolist():
             lo, hi = cuts[i], cuts[i + 1]
             here = pairs.part(lo, hi)
-            if relink:
+            if relink and not sure[i + 1]:
                 # The boundary keeps its links if it links every tail that has a successor,
                 # to that successor, and no other.
                 linked_a, linked_b = match(here.a, here.b, cost[lo:hi], self.gate)
                 if linked_a.size != crossing[i] or not same(nxt[linked_a], linked_b):
                     return None
-            judged.append((here, cost[lo:hi], nxt[here.a] == here.b))
+            elif (
+                relink and np.count_nonzero(kept[lo:hi] & (cost[lo:hi] < self.gate)) != crossing[i]
+            ):
+                return None  # a crossing link the matching cannot take (no candidate, or gated)
+            judged.append((here, cost[lo:hi], kept[lo:hi]))
         return judged
 
     def ends(

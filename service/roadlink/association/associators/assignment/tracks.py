@@ -23,7 +23,7 @@ from roadlink.association.associators.assignment.gating import (
     Gate,
     Pairs,
 )
-from roadlink.association.associators.assignment.matching import match
+from roadlink.association.associators.assignment.matching import match, sure_matchings
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import Neighbour, PaceModel
 from roadlink.association.associators.assignment.params import (
@@ -218,7 +218,8 @@ def build_tracks(
                 )
             else:
                 pairs, cost = foreseen.at(q)
-                linked_a, linked_b = match(pairs.a, pairs.b, cost, params.gate_cost)
+                sure = foreseen.sure_links(q)
+                linked_a, linked_b = sure or match(pairs.a, pairs.b, cost, params.gate_cost)
                 track[linked_b] = track[linked_a]
                 tail[track[linked_b]] = linked_b
                 made.append((linked_a, linked_b))
@@ -251,6 +252,8 @@ class Foreseen:
     pairs: Pairs
     cost: FloatArray
     bounds: list[int]  # sensor q's candidates are pairs[bounds[q]:bounds[q + 1]]
+    chosen: BoolArray  # the candidates that are links of the expected tracks
+    sure: list[bool]  # whether sensor q's matching surely makes those (`sure_matchings`)
 
     @classmethod
     def of(
@@ -281,13 +284,25 @@ class Foreseen:
         cost = link_cost(params, model, pairs, level.of(pairs.a), detection_level(s, pairs.b), s)
         cost -= anchor_bonus(pairs, anchor)
         cost += edges.cost(pairs)
-        bounds = s.sensor[pairs.b].searchsorted(np.arange(s.positions.size + 1))
-        return cls(expected, pairs, cost, bounds.tolist())
+        q = s.sensor[pairs.b]
+        bounds = q.searchsorted(np.arange(s.positions.size + 1))
+        chosen = (nxt[pairs.a] == pairs.b) & (cost < params.gate_cost)  # what match could take
+        sure = sure_matchings(pairs.a, pairs.b, cost, q, chosen, params.gate_cost, s.positions.size)
+        return cls(expected, pairs, cost, bounds.tolist(), chosen, sure.tolist())
 
     def at(self, q: int) -> tuple[Pairs, FloatArray]:
         """Sensor q's candidates and their costs."""
         lo, hi = self.bounds[q], self.bounds[q + 1]
         return self.pairs.part(lo, hi), self.cost[lo:hi]
+
+    def sure_links(self, q: int) -> tuple[IntArray, IntArray] | None:
+        """The links sensor q's matching makes, where it surely makes the expected tracks' (the
+        same set as `match` returns; the pass uses them in no order): None where unsure."""
+        if not self.sure[q]:
+            return None
+        lo, hi = self.bounds[q], self.bounds[q + 1]
+        linked = self.chosen[lo:hi]
+        return self.pairs.a[lo:hi][linked], self.pairs.b[lo:hi][linked]
 
 
 @dataclass(frozen=True)
