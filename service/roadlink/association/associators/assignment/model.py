@@ -112,7 +112,7 @@ class Tails:
             np.exp(share, out=share)
             total = float(np.add.reduce(share))  # share.sum(), without its Python wrapper
             w = min(max(total / z2.size, TAIL_WEIGHT_RANGE[0]), TAIL_WEIGHT_RANGE[1])
-            s = math.sqrt(float(share @ z2) / max(total, 1e-9))
+            s = math.sqrt(float(share.dot(z2)) / max(total, 1e-9))  # `@`'s BLAS dot, quicker
             s = min(max(s, TAIL_MIN_SCALE), TAIL_MAX_SCALE)
             if abs(w - before[0]) < weight_tolerance and abs(s - before[1]) < scale_tolerance:
                 break

@@ -52,9 +52,17 @@ class Sensors:
     median_speed: FloatArray  # the median (floored) speed at each sensor
     features: SensorFeatures | None = None  # lane, length, class, where detectors report them
     _reaching: dict[int, tuple[IntArray, IntArray]] = field(default_factory=dict, repr=False)
+    _starts: list[int] = field(default_factory=list, repr=False)  # `start` as Python ints
 
     def members(self, k: int) -> IntArray:
-        return self.order[self.start[k] : self.start[k + 1]]
+        # Sliced by Python ints: a paper-size batch asks a hundred times, and numpy's integers
+        # cost more to slice by than the slice itself.
+        starts = self._starts or self._python_starts()
+        return self.order[starts[k] : starts[k + 1]]
+
+    def _python_starts(self) -> list[int]:
+        self._starts.extend(self.start.tolist())
+        return self._starts
 
     @cached_property
     def first_time(self) -> FloatArray:
