@@ -15,12 +15,13 @@ from roadlink.association.associators.assignment.params import REFINE_GATE_FACTO
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import (
     Unchanged,
+    _tracks_again,
     fragment_ends,
     refine_boundaries,
     suffix_sums,
 )
 from roadlink.association.associators.assignment.sensors import arrange
-from roadlink.association.associators.assignment.tracks import successors
+from roadlink.association.associators.assignment.tracks import successors, tracks_from_links
 from roadlink.simulation import preset, simulate
 from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
 
@@ -165,3 +166,24 @@ def test_a_sweep_worked_out_at_once_is_the_sweep_boundary_by_boundary(
         assert np.array_equal(confidence, plain_confidence, equal_nan=True)
     if seed == 2:
         assert found[0][1]  # the fragments were joined
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_tracks_read_again_from_their_links_are_numbered_as_tracks_from_links_numbers_them(
+    seed: int,
+) -> None:
+    # A forward pass's tracks (numbered by their births, as tracks_from_links numbers them),
+    # the same renumbered, and with a detection left out: read again from their own links,
+    # each is what tracks_from_links makes of them.
+    s = arrange(simulate(preset("medium", miss_probability=0.1), seed=seed).detections, PARAMS)
+    prior = segment_prior(s, PARAMS.max_skip + 1, PARAMS)
+    track, _, _ = link_and_learn(s, PARAMS, prior, prior, 1)
+    renumbered = np.where(track >= 0, track.max() - track, -1)
+    cut = track.copy()
+    cut[s.members(3)[0]] = -1
+    for tracks in (track, renumbered, cut):
+        _, prv = successors(s, tracks)
+        in_track = tracks >= 0
+        again = _tracks_again(s, tracks, prv, in_track)
+        assert np.array_equal(again, tracks_from_links(s, prv, in_track))
+    assert np.array_equal(_tracks_again(s, track, successors(s, track)[1], track >= 0), track)

@@ -242,7 +242,7 @@ def _within_gate(
     """The links from each of d's departures to `count` places of `slot` (places in s.order;
     None: the places themselves) from its `first` on, those whose travel time alone is within
     the gate: GATE_CHUNK candidates at a time (or the departures of one that has more)."""
-    ends = np.cumsum(count)
+    ends = count.cumsum()
     if ends.size == 0 or ends[-1] <= GATE_CHUNK:
         return _within_gate_chunk(s, model, params, d, slot, first, count, gate)
     cuts = np.searchsorted(ends, np.arange(GATE_CHUNK, ends[-1], GATE_CHUNK), side="right")
@@ -268,24 +268,24 @@ def _within_gate_chunk(
     gate: float,
 ) -> Pairs:
     """`_within_gate` of one chunk."""
-    which = np.repeat(np.arange(d.a.size), count)  # the departure of every candidate
-    at = np.repeat(first - (np.cumsum(count) - count), count)
+    which = np.arange(d.a.size).repeat(count)  # the departure of every candidate
+    at = (first - (count.cumsum() - count)).repeat(count)
     at += np.arange(which.size)
     if slot is not None:
         at = slot[at]
     # A departure's numbers repeated for each of its candidates (np.repeat: quicker than
     # indexing by `which`, the same numbers).
-    predicted = np.repeat(d.to_b, count)
+    predicted = d.to_b.repeat(count)
     predicted *= s.sorted_inverse_speed[at]
-    np.add(np.repeat(d.from_a, count), predicted, out=predicted)
+    np.add(d.from_a.repeat(count), predicted, out=predicted)
     travel = s.sorted_time[at]
-    travel -= np.repeat(s.time[d.a], count)
+    travel -= s.time[d.a].repeat(count)
     ratio = s.sorted_log_speed[at]
-    ratio -= np.repeat(d.centre, count)
-    variance = np.repeat(d.time_spread * d.time_spread, count)
+    ratio -= d.centre.repeat(count)
+    variance = (d.time_spread * d.time_spread).repeat(count)
     r_time = standardised(params, predicted, travel, ratio, variance)
-    within = model.time_tails.within(r_time, np.repeat(d.span, count), params.miss_cost, gate)
-    keep = np.flatnonzero(within)  # once: quicker than the mask for each array (`Pairs.take`)
+    within = model.time_tails.within(r_time, d.span.repeat(count), params.miss_cost, gate)
+    keep = within.nonzero()[0]  # once: quicker than the mask for each array (`Pairs.take`)
     kept = which[keep]
     return Pairs(
         d.a[kept],

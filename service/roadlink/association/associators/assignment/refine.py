@@ -81,7 +81,7 @@ def refine_boundaries(
         if kept is not None:
             if confidence is not None:
                 judge_links(confidence, kept, params.gate_cost)
-            return tracks_from_links(s, prv, in_track), False
+            return _tracks_again(s, track, prv, in_track), False
     levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
     changed = False
     judged: list[Judged] = []
@@ -122,6 +122,17 @@ def refine_boundaries(
 Judged = tuple[Pairs, FloatArray, BoolArray]
 
 
+def _tracks_again(s: Sensors, track: IntArray, prv: IntArray, in_track: BoolArray) -> IntArray:
+    """`tracks_from_links(s, prv, in_track)` of the links `track` holds (`successors`): the same
+    tracks, which it numbers by their first detections in s.order's order. The forward pass
+    numbers its births so, so where `track` already does, it is the answer (its detections out of
+    a track at -1); else they are worked out sensor by sensor."""
+    first = s.order[(in_track & (prv < 0))[s.order]]
+    if same(track[first], np.arange(first.size)):
+        return np.where(in_track, track, -1)
+    return tracks_from_links(s, prv, in_track)
+
+
 @dataclass(frozen=True)
 class Unchanged:
     """A sweep worked out at once for every boundary, as if no boundary changed a link: on a
@@ -160,7 +171,8 @@ class Unchanged:
             for level in levels:
                 level.extend_heads(m, prv[m])
         cost = boundary_cost(self.params, self.model, pairs, levels, s, links)
-        cost -= anchor_bonus(pairs, self.anchor)
+        if self.anchor is not None:  # else a bonus of 0, which changes no cost
+            cost -= anchor_bonus(pairs, self.anchor)
         cost += self.edges.cost(pairs) + self.fragment_ends(boundary, links, pairs)
         cuts = np.searchsorted(boundary, np.arange(1, n_sensors + 1)).tolist()
         kept = nxt[pairs.a] == pairs.b

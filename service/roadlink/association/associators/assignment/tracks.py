@@ -282,7 +282,8 @@ class Foreseen:
             m = m[prv[m] >= 0]
             level.extend(s, prv[m], m, model.pace)
         cost = link_cost(params, model, pairs, level.of(pairs.a), detection_level(s, pairs.b), s)
-        cost -= anchor_bonus(pairs, anchor)
+        if anchor is not None:  # else a bonus of 0, which changes no cost
+            cost -= anchor_bonus(pairs, anchor)
         cost += edges.cost(pairs)
         q = s.sensor[pairs.b]
         bounds = q.searchsorted(np.arange(s.positions.size + 1))
