@@ -28,6 +28,7 @@ from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import refine_boundaries
 from roadlink.association.associators.assignment.sensors import Sensors, arrange
 from roadlink.association.associators.assignment.tracks import (
+    LevelRelay,
     SweepSetup,
     build_tracks,
     duplicate_followers,
@@ -103,6 +104,7 @@ def link_and_learn(
     # Without lengths a chain drawn again would be the same.
     redraw = s.features is not None and s.features.has_length()
     learned_from = None  # the tracks the current model was learned from, with these anchors
+    relay = LevelRelay()  # the last pass's tracks and their levels, for the next to foresee
     for r in range(rounds):
         final = learned_from is not None or r + 1 == rounds  # perhaps the sweep's model
         track = build_tracks(
@@ -116,6 +118,7 @@ def link_and_learn(
             anchor,
             sweep if final and params.refine_sweeps > 0 else None,
             learned_from,
+            relay,
         )
         if learned_from is not None and same(track, learned_from):
             if passes.progress:

@@ -170,12 +170,14 @@ def build_tracks(
     anchor: Anchors | None = None,
     sweep: SweepSetup | None = None,
     expected: IntArray | None = None,
+    relay: LevelRelay | None = None,
 ) -> IntArray:
     """One sequential pass over the sensors: the track index of every detection (-1 = none).
     Links that lane order `anchor`s (`anchors.py`) cost their bonus less. With `sweep`, the
     re-pairing sweep's gating and edges with this model are worked out too, and kept there.
     With `expected` tracks (the round before's), the candidates and costs of every sensor are
-    worked out at once as if the pass built those (`Foreseen`), as long as it does."""
+    worked out at once as if the pass built those (`Foreseen`), as long as it does. With a
+    `relay`, the pass leaves its tracks' levels there, and takes the round before's from it."""
     n_sensors = s.positions.size
     track = filled(s.time.size, -1, np.int64)
     level = TrackLevel.start(s, model.pace)
@@ -191,7 +193,7 @@ def build_tracks(
     copies = leader if (leader >= 0).any() else None
     foreseen = None
     if expected is not None and gate.every is not None:
-        foreseen = Foreseen.of(s, model, params, gate.every, edges, anchor, expected)
+        foreseen = Foreseen.of(s, model, params, gate.every, edges, anchor, expected, relay)
     made: list[tuple[IntArray, IntArray]] = []  # the links made, while foreseen
     priced = None  # every link's own prices, once a sensor is linked on its own (`Priced`)
     # What an anchor can take off a link's cost at most (`costs.affordable`; inf: unknown).
@@ -234,7 +236,41 @@ def build_tracks(
                 level.extend(s, a, b, model.pace)
         if progress:
             progress(done + share * (q + 1) / n_sensors)
+    if relay is not None:
+        # A pass that built the tracks foreseen extended no level (and ends the rounds).
+        relay.track, relay.level = (track, level) if foreseen is None else (None, None)
     return track
+
+
+@dataclass
+class LevelRelay:
+    """A forward pass's tracks and their levels (`TrackLevel`), for the next round's pass that
+    foresees those tracks (`Foreseen`): a level's mean speeds and lengths along a track depend
+    on the track alone, not on the model, so they are taken as they are (one pass's extends
+    sensor by sensor, where Foreseen would make them again); the pace, the model's, is worked
+    out again, for every link at once."""
+
+    track: IntArray | None = None
+    level: TrackLevel | None = None
+
+    def levels(
+        self, s: Sensors, expected: IntArray, prv: IntArray, pace: PaceModel | None
+    ) -> TrackLevel | None:
+        """The levels of the `expected` tracks (whose predecessors are `prv`) with this `pace`,
+        if the pass that built them left them here."""
+        if self.track is not expected or self.level is None:
+            return None
+        neighbour = None
+        if pace is not None:
+            # What `TrackLevel.extend` writes, for every link at once (each number its own).
+            neighbour = Neighbour.unknown(s.time.size)
+            b = (prv >= 0).nonzero()[0]
+            a = prv[b]
+            neighbour.pace[b] = pace.of(s, a, b)
+            neighbour.speed[b] = s.log_speed[a]
+            neighbour.travel[b] = s.time[b] - s.time[a]
+        kept = self.level
+        return TrackLevel(kept.mean, kept.count, kept.length_mean, kept.length_count, neighbour)
 
 
 @dataclass(frozen=True)
@@ -265,6 +301,7 @@ class Foreseen:
         edges: WindowEdges,
         anchor: Anchors | None,
         expected: IntArray,
+        relay: LevelRelay | None = None,
     ) -> Foreseen:
         nxt, prv = successors(s, expected)
         gated = every.pairs
@@ -276,11 +313,13 @@ class Foreseen:
         kept = keep.nonzero()[0]
         key = q[kept] * (int(expected.max(initial=0)) + 1) + expected[a[kept]]
         pairs = gated.take(kept[key.argsort(kind="stable")])
-        level = TrackLevel.start(s, model.pace)
-        for sensor in range(1, s.positions.size):
-            m = s.members(sensor)
-            m = m[prv[m] >= 0]
-            level.extend(s, prv[m], m, model.pace)
+        level = None if relay is None else relay.levels(s, expected, prv, model.pace)
+        if level is None:
+            level = TrackLevel.start(s, model.pace)
+            for sensor in range(1, s.positions.size):
+                m = s.members(sensor)
+                m = m[prv[m] >= 0]
+                level.extend(s, prv[m], m, model.pace)
         cost = link_cost(params, model, pairs, level.of(pairs.a), detection_level(s, pairs.b), s)
         if anchor is not None:  # else a bonus of 0, which changes no cost
             cost -= anchor_bonus(pairs, anchor)
