@@ -14,6 +14,7 @@ from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR, within_time_scale
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import (
+    Summed,
     Unchanged,
     _tracks_again,
     fragment_ends,
@@ -21,7 +22,11 @@ from roadlink.association.associators.assignment.refine import (
     suffix_sums,
 )
 from roadlink.association.associators.assignment.sensors import arrange
-from roadlink.association.associators.assignment.tracks import successors, tracks_from_links
+from roadlink.association.associators.assignment.tracks import (
+    level_terms,
+    successors,
+    tracks_from_links,
+)
 from roadlink.simulation import preset, simulate
 from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
 
@@ -187,3 +192,26 @@ def test_tracks_read_again_from_their_links_are_numbered_as_tracks_from_links_nu
         again = _tracks_again(s, tracks, prv, in_track)
         assert np.array_equal(again, tracks_from_links(s, prv, in_track))
     assert np.array_equal(_tracks_again(s, track, successors(s, track)[1], track >= 0), track)
+
+
+@pytest.mark.parametrize("traffic", [{}, FAULTS, FEATURES])
+def test_running_sums_along_every_track_at_once_are_those_extended_sensor_by_sensor(
+    traffic: dict[str, object],
+) -> None:
+    # Prefix sums (to the last sensor but one, as a sweep that keeps its links extends them)
+    # and suffix sums of each level term, for every track at once or sensor by sensor: the
+    # same numbers to the bit.
+    s = arrange(simulate(preset("medium", **traffic), seed=4).detections, PARAMS)
+    prior = segment_prior(s, PARAMS.max_skip + 1, PARAMS)
+    track, _, _ = link_and_learn(s, PARAMS, prior, prior, 1)
+    nxt, prv = successors(s, track)
+    for value, weight in level_terms(s):
+        at_once = Summed.along(s, value, weight, track)
+        by_sensor = Summed.of(s, value, weight, nxt, track >= 0)
+        for q in range(s.positions.size - 1):
+            m = s.members(q)
+            m = m[prv[m] >= 0]
+            by_sensor.extend_heads(m, prv[m])
+        for field in ("weight", "head_sum", "head_count", "tail_sum", "tail_count"):
+            assert np.array_equal(getattr(at_once, field), getattr(by_sensor, field))
+        assert (at_once.head_count > 1).sum() > 50

@@ -77,7 +77,7 @@ def refine_boundaries(
         gate, edges = ready
     if gate.every is not None:
         unchanged = Unchanged(s, model, params, gate.every, gate.gate, edges, anchor)
-        kept = unchanged.sweep((nxt, prv), in_track, relink)
+        kept = unchanged.sweep(track, (nxt, prv), relink)
         if kept is not None:
             if confidence is not None:
                 judge_links(confidence, kept, params.gate_cost)
@@ -156,20 +156,17 @@ class Unchanged:
     anchor: Anchors | None
 
     def sweep(
-        self, links: tuple[IntArray, IntArray], in_track: BoolArray, relink: bool
+        self, track: IntArray, links: tuple[IntArray, IntArray], relink: bool
     ) -> list[Judged] | None:
         """Each boundary's candidates, costs and kept links (`Judged`), in the sweep's order,
-        if no boundary changes a link (`relink=False`: none does); else None."""
-        s, (nxt, prv) = self.s, links
+        if no boundary changes a link (`relink=False`: none does); else None. `links` are the
+        `track`s' (`successors`)."""
+        s, (nxt, _) = self.s, links
         n_sensors = s.positions.size
+        in_track = track >= 0
         tails, crossing, heads = self.ends(links, in_track)
         pairs, boundary = self.candidates(links, in_track)
-        levels = [Summed.of(s, v, w, nxt, in_track) for v, w in level_terms(s)]
-        for q in range(n_sensors - 1):
-            m = s.members(q)
-            m = m[prv[m] >= 0]
-            for level in levels:
-                level.extend_heads(m, prv[m])
+        levels = [Summed.along(s, v, w, track) for v, w in level_terms(s)]
         cost = boundary_cost(self.params, self.model, pairs, levels, s, links)
         if self.anchor is not None:  # else a bonus of 0, which changes no cost
             cost -= anchor_bonus(pairs, self.anchor)
@@ -335,6 +332,35 @@ class Summed:
         weight = np.where(in_track, weight, 0.0)
         tail_sum, tail_count = suffix_sums(s, nxt, value * weight, weight)
         return cls(value, weight, value * weight, weight.copy(), tail_sum, tail_count)
+
+    @classmethod
+    def along(cls, s: Sensors, value: FloatArray, weight: FloatArray, track: IntArray) -> Summed:
+        """`of`, with every head extended as a sweep that changes no link extends them (to the
+        last sensor but one), the same numbers: a prefix's sum is its track's running sum, and
+        a suffix's the running sum from its end, each one added as `extend_heads` and
+        `suffix_sums` add it (IEEE addition commutes), for every track at once, row by row of
+        one padded array (the tracks by their detections in road order)."""
+        in_track = track >= 0
+        weight = np.where(in_track, weight, 0.0)
+        terms = np.stack([value * weight, weight])
+        chain = s.by_track(in_track.nonzero()[0], track)
+        ids = track[chain]
+        new = np.ones(chain.size, dtype=bool)
+        np.not_equal(ids[1:], ids[:-1], out=new[1:])
+        row = new.cumsum() - 1
+        start = new.nonzero()[0]
+        column = np.arange(chain.size) - start[row]
+        size = np.diff(np.append(start, chain.size))
+        backwards = size[row] - 1 - column
+        padded = np.zeros((2, 2, start.size, int(size.max(initial=0))))
+        padded[0][:, row, column] = terms[:, chain]
+        padded[1][:, row, backwards] = terms[:, chain]
+        running = padded.cumsum(axis=3)
+        head, tail = terms.copy(), terms.copy()
+        extended = s.sensor[chain] < s.positions.size - 1
+        head[:, chain[extended]] = running[0][:, row, column][:, extended]
+        tail[:, chain] = running[1][:, row, backwards]
+        return cls(value, weight, head[0], head[1], tail[0], tail[1])
 
     def extend_heads(self, m: IntArray, before: IntArray) -> None:
         """Detections m now follow `before` in their tracks."""
