@@ -26,4 +26,4 @@ def filled(shape: int | tuple[int, ...], value: Any, dtype: npt.DTypeLike = np.f
 
 def same(a: npt.NDArray[Any], b: npt.NDArray[Any]) -> bool:
     """np.array_equal(a, b) of two arrays: the same shape and the same values."""
-    return a.shape == b.shape and bool((a == b).all())
+    return a.shape == b.shape and bool(np.logical_and.reduce(a == b, axis=None))

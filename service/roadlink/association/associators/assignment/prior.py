@@ -224,7 +224,7 @@ class FewPairs:
             for lo_q, h, span in zip(lo.tolist(), hi.tolist(), span_of_time, strict=True)
         ]
         typical_sums = [
-            float(typical[lo_a:hi_a].sum())  # each segment's own (pairwise) sum
+            float(np.add.reduce(typical[lo_a:hi_a]))  # each segment's own (pairwise) sum
             for lo_a, hi_a in zip(bounds.tolist(), (bounds + sizes).tolist(), strict=True)
         ]
         pa = np.repeat(a, count)
