@@ -187,3 +187,18 @@ def test_a_matching_is_not_sure_at_a_tie_or_with_a_node_left_out() -> None:
     # Left 1 left out, though it has an edge under the gate; an empty second matching is sure.
     alone = np.array([True, False, False])
     assert sure_matchings(left, right, clear, group, alone, 10.0, 2).tolist() == [False, True]
+
+
+def test_sure_matchings_of_far_apart_ids_are_those_of_the_ids_renumbered() -> None:
+    # Many matchings of few nodes whose ids are spread far (a long road's detections): the
+    # same answers as with the ids numbered from 0, from tables as long as the edges.
+    rng = np.random.default_rng(3)
+    groups = 500
+    group = np.repeat(np.arange(groups), 4)
+    left = np.tile([0, 0, 1, 1], groups)
+    right = np.tile([0, 1, 0, 1], groups)
+    cost = rng.uniform(0.0, 12.0, group.size)
+    chosen = np.tile([True, False, False, True], groups)
+    near = sure_matchings(left, right, cost, group, chosen, 10.0, groups)
+    far = sure_matchings(left + 10**6 * group, right + 7 * 10**5, cost, group, chosen, 10.0, groups)
+    assert np.array_equal(near, far) and 0 < near.sum() < groups

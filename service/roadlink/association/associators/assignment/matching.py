@@ -121,13 +121,14 @@ def sure_matchings(
     matching than in any other (an edge's cost split between its ends, gate / 2 for a node
     alone), which is the one optimum. A paper-size batch's forward pass that rebuilds the round
     before's tracks, and a sweep that keeps its links, are mostly such matchings."""
-    n_groups = groups
     under = cost < gate
     chosen = chosen & under
+    # Each node numbered among all matchings' nodes (a table as long as the edges, whatever the
+    # ids: a road of many sensors has many matchings of few nodes).
     width = int(max(left.max(initial=-1), right.max(initial=-1))) + 1
-    left_key = group * width + left
-    right_key = group * width + right
-    at_left = np.empty(n_groups * width)  # the chosen edge's cost at each node, NaN: none
+    left_key = unique_inverse(group * width + left)[1]
+    right_key = unique_inverse(group * width + right)[1]
+    at_left = np.empty(left.size)  # the chosen edge's cost at each node, NaN: none
     at_left.fill(np.nan)
     at_right = at_left.copy()
     at_left[left_key[chosen]] = cost[chosen]
@@ -142,7 +143,7 @@ def sure_matchings(
     # No node in two chosen edges.
     ok &= ~chosen | (np.bincount(left_key[chosen], minlength=at_left.size)[left_key] == 1)
     ok &= ~chosen | (np.bincount(right_key[chosen], minlength=at_left.size)[right_key] == 1)
-    sure: Mask = np.bincount(group[~ok], minlength=n_groups) == 0
+    sure: Mask = np.bincount(group[~ok], minlength=groups) == 0
     return sure
 
 

@@ -237,8 +237,11 @@ def build_tracks(
         if progress:
             progress(done + share * (q + 1) / n_sensors)
     if relay is not None:
-        # A pass that built the tracks foreseen extended no level (and ends the rounds).
-        relay.track, relay.level = (track, level) if foreseen is None else (None, None)
+        # A pass that built the tracks foreseen extended no level (and ends the rounds); only
+        # a pass gated at once can foresee, so only there are the levels held on (at 10^6
+        # detections they would be held through the next pass).
+        done_alone = foreseen is None and gate.every is not None
+        relay.track, relay.level = (track, level) if done_alone else (None, None)
     return track
 
 
