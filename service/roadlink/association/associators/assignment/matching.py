@@ -106,6 +106,7 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
 # (~1e-13 on costs of a gate's size) and the sparse one's quantum (1 / COST_QUANTUM_INVERSE),
 # so that no solver's ties or rounding could prefer another matching.
 SURE_MARGIN = 8.0 / COST_QUANTUM_INVERSE
+SURE_TABLE = 16  # `sure_matchings`' nodes by id up to this many times as many as its edges
 
 
 def sure_matchings(
@@ -123,12 +124,16 @@ def sure_matchings(
     before's tracks, and a sweep that keeps its links, are mostly such matchings."""
     under = cost < gate
     chosen = chosen & under
-    # Each node numbered among all matchings' nodes (a table as long as the edges, whatever the
-    # ids: a road of many sensors has many matchings of few nodes).
+    # Each node numbered among all matchings' nodes: by matching and id where that table is
+    # short, else by rank (a road of many sensors has many matchings of few nodes; the table
+    # stays within a few times the edges).
     width = int(max(left.max(initial=-1), right.max(initial=-1))) + 1
-    left_key = unique_inverse(group * width + left)[1]
-    right_key = unique_inverse(group * width + right)[1]
-    at_left = np.empty(left.size)  # the chosen edge's cost at each node, NaN: none
+    left_key, right_key = group * width + left, group * width + right
+    size = groups * width
+    if size > SURE_TABLE * (left.size + 1):
+        left_key, right_key = unique_inverse(left_key)[1], unique_inverse(right_key)[1]
+        size = left.size
+    at_left = np.empty(size)  # the chosen edge's cost at each node, NaN: none
     at_left.fill(np.nan)
     at_right = at_left.copy()
     at_left[left_key[chosen]] = cost[chosen]
