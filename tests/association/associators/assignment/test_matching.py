@@ -7,7 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-from roadlink.association.associators.assignment.matching import _match_dense, match
+from roadlink.association.associators.assignment.matching import (
+    SURE_MARGIN,
+    _match_dense,
+    match,
+    sure_matchings,
+)
 
 
 def test_match_takes_an_edge_only_when_it_beats_leaving_both_alone():
@@ -125,3 +130,75 @@ def test_unique_inverse_is_numpys_for_few_and_many_nodes():
             assert inverse.dtype == expected_inverse.dtype
     narrow = np.array([3, 9, 3, 5] * 20, dtype=np.int32)
     assert unique_inverse(narrow)[0].dtype == np.int32
+
+
+def test_a_matching_called_sure_is_the_one_match_makes() -> None:
+    # Many small matchings at once, with whole-number costs (ties among rivals) and costs a
+    # hair apart: wherever `sure_matchings` says a matching surely takes the chosen edges,
+    # `match` takes exactly those; the chosen edges are match's own, or a wrong guess.
+    rng = np.random.default_rng(7)
+    gate, checked, sure_seen = 10.0, 0, 0
+    for _ in range(300):
+        groups = int(rng.integers(1, 6))
+        edges = [
+            (int(g), int(rng.integers(0, 5)), int(rng.integers(0, 5)))
+            for g in range(groups)
+            for _ in range(int(rng.integers(0, 9)))
+        ]
+        edges = sorted(set(edges))
+        if not edges:
+            continue
+        group, left, right = (
+            np.array(column, dtype=np.int64) for column in zip(*edges, strict=True)
+        )
+        cost = rng.integers(0, 12, size=group.size).astype(float)
+        cost += rng.choice([0.0, SURE_MARGIN / 3, 0.5], size=group.size)
+        solved = [
+            match(left[group == g], right[group == g], cost[group == g], gate)
+            for g in range(groups)
+        ]
+        chosen = np.zeros(group.size, dtype=bool)
+        for g, (a, b) in enumerate(solved):
+            taken = set(zip(a.tolist(), b.tolist(), strict=True))
+            for i in np.flatnonzero(group == g):
+                chosen[i] = (int(left[i]), int(right[i])) in taken
+        if rng.random() < 0.3:
+            chosen ^= rng.random(group.size) < 0.2  # a wrong guess in places
+        sure = sure_matchings(left, right, cost, group, chosen, gate, groups)
+        for g in np.flatnonzero(sure).tolist():
+            a, b = solved[g]
+            here = (group == g) & chosen & (cost < gate)
+            assert sorted(zip(a.tolist(), b.tolist(), strict=True)) == sorted(
+                zip(left[here].tolist(), right[here].tolist(), strict=True)
+            )
+            sure_seen += 1
+        checked += groups
+    assert sure_seen > checked // 10  # not vacuous
+
+
+def test_a_matching_is_not_sure_at_a_tie_or_with_a_node_left_out() -> None:
+    left, right = np.array([0, 0, 1]), np.array([0, 1, 1])
+    group = np.zeros(3, dtype=np.int64)
+    clear = np.array([1.0, 5.0, 2.0])
+    chosen = np.array([True, False, True])
+    assert sure_matchings(left, right, clear, group, chosen, 10.0, 1).tolist() == [True]
+    tied = np.array([1.0, 2.0, 2.0])  # left 0 to right 1 costs what right 1's own edge does
+    assert sure_matchings(left, right, tied, group, chosen, 10.0, 1).tolist() == [False]
+    # Left 1 left out, though it has an edge under the gate; an empty second matching is sure.
+    alone = np.array([True, False, False])
+    assert sure_matchings(left, right, clear, group, alone, 10.0, 2).tolist() == [False, True]
+
+
+def test_sure_matchings_of_far_apart_ids_are_those_of_the_ids_renumbered() -> None:
+    # Many matchings of few nodes whose ids are spread far (a long road's detections): the
+    # same answers as with the ids numbered from 0, from tables as long as the edges.
+    rng = np.random.default_rng(3)
+    groups = 500
+    group = np.repeat(np.arange(groups), 4)
+    left = np.tile([0, 0, 1, 1], groups)
+    right = np.tile([0, 1, 0, 1], groups)
+    cost = rng.uniform(0.0, 12.0, group.size)
+    chosen = np.tile([True, False, False, True], groups)
+    near = sure_matchings(left, right, cost, group, chosen, 10.0, groups)
+    far = sure_matchings(left + 10**6 * group, right + 7 * 10**5, cost, group, chosen, 10.0, groups)
+    assert np.array_equal(near, far) and 0 < near.sum() < groups

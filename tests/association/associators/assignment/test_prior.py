@@ -10,7 +10,10 @@ import pytest
 from roadlink.association.associators.assignment import AssignmentParams
 from roadlink.association.associators.assignment.prior import (
     PRIOR_BINS,
+    BiasHistogram,
+    FewPairs,
     bin_counts,
+    excess_centres,
     few_targets_priors,
     segment_prior,
     travel_time_prior,
@@ -130,3 +133,33 @@ def test_segments_of_a_handful_of_targets_at_once_give_each_its_own_prior(n):
         np.testing.assert_array_equal(together, one_by_one)
         if n >= 10 and seed < 5:  # the slow zone's segment shows in both
             assert together[0] > 0.2
+
+
+def test_every_segments_centre_at_once_is_each_histograms_own() -> None:
+    # Segments with a few values near their peak, none, and more than run_medians takes at
+    # once (then one by one): each centre is `BiasHistogram.centre`'s, to the bit.
+    rng = np.random.default_rng(5)
+    sizes = [7, 0, 3, 90, 12]
+    values = np.concatenate([rng.normal(rng.uniform(-1, 1), 0.05, k) for k in sizes])
+    value_of = np.repeat(np.arange(len(sizes)), sizes)
+    excess = rng.normal(0.0, 1.0, (len(sizes), PRIOR_BINS.size - 1))
+    which = np.array([0, 1, 3, 4])
+    together = excess_centres(values, value_of, which, excess[which], len(sizes))
+    own = np.split(values, np.cumsum(sizes)[:-1])
+    alone = [BiasHistogram(own[k], excess[k], excess[k]).centre() for k in which.tolist()]
+    np.testing.assert_array_equal(together, alone)
+
+
+def test_arrivals_at_once_are_those_found_segment_by_segment() -> None:
+    # The sample pairs' windows at the far sensors, found among every arrival at once or, where
+    # a time is NaN (no arrival keys), segment by segment: the same pairs.
+    s = arrange(slow_zone(3, 12), PARAMS)
+    sensors = np.arange(s.positions.size - 1)
+    samples = [s.members(p) for p in sensors]
+    at_once = FewPairs.of(s, samples, sensors + 1)
+    s.__dict__["arrival_keys"] = None  # the cached keys, as a batch with a NaN time has them
+    apart = FewPairs.of(s, samples, sensors + 1)
+    assert at_once.values.size > 20
+    for field in ("values", "value_of", "pairs", "any_ahead"):
+        np.testing.assert_array_equal(getattr(at_once, field), getattr(apart, field))
+    assert at_once.rates == apart.rates and at_once.typical_sums == apart.typical_sums

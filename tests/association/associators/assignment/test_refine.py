@@ -20,13 +20,19 @@ from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import (
     Judged,
     Judging,
+    Summed,
     Unchanged,
+    _tracks_again,
     fragment_ends,
     refine_boundaries,
     suffix_sums,
 )
 from roadlink.association.associators.assignment.sensors import Sensors, arrange
-from roadlink.association.associators.assignment.tracks import successors
+from roadlink.association.associators.assignment.tracks import (
+    level_terms,
+    successors,
+    tracks_from_links,
+)
 from roadlink.simulation import SimulationConfig, preset, simulate
 from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
 
@@ -142,7 +148,8 @@ def test_a_sweep_worked_out_at_once_is_the_sweep_boundary_by_boundary(
 ) -> None:
     # Paper-size batches (every sensor's links gated at once), after the associator's linking:
     # tracks, whether a link changed, and every confidence to the bit, whether the sweep
-    # changes links (then it is made boundary by boundary) or not, judging alone or relinking.
+    # changes links (then it is made boundary by boundary) or not, judging alone or relinking;
+    # and at once with every boundary's matching solved (none taken as sure).
     s = arrange(simulate(preset("large", **traffic), seed=seed).detections, PARAMS)
     params = within_time_scale(PARAMS, s.typical_travel_time())
     prior = segment_prior(s, params.max_skip + 1, params)
@@ -153,8 +160,10 @@ def test_a_sweep_worked_out_at_once_is_the_sweep_boundary_by_boundary(
         track = np.where(cut, track + track.max() + 1, track)
     options: list[dict[str, object]] = [{}, {"tentative": True}, {"relink": False}]
     found = []
-    for plain in (False, True):
-        if plain:
+    for way in ("at once", "solved", "plain"):
+        if way == "solved":
+            monkeypatch.setattr(refine, "sure_matchings", lambda *args: np.zeros(99, dtype=bool))
+        if way == "plain":
             monkeypatch.setattr(Unchanged, "sweep", lambda *_: None)
         for option in options:
             confidence = np.full(track.size, np.nan)
@@ -162,9 +171,8 @@ def test_a_sweep_worked_out_at_once_is_the_sweep_boundary_by_boundary(
                 s, model, params, track.copy(), confidence, anchor=anchor, **option
             )  # type: ignore[arg-type]
             found.append((after, changed, confidence))
-    for (after, changed, confidence), (plain_after, plain_changed, plain_confidence) in zip(
-        found[:3], found[3:], strict=True
-    ):
+    for k, (after, changed, confidence) in enumerate(found[3:]):
+        plain_after, plain_changed, plain_confidence = found[k % 3]
         assert np.array_equal(after, plain_after) and changed == plain_changed
         assert np.array_equal(confidence, plain_confidence, equal_nan=True)
     if seed == 2:
@@ -269,3 +277,47 @@ def test_a_sweep_holds_the_links_of_a_boundary_or_two_not_of_every_boundary(
     linked.sweep()
     assert len(costs) == len(alive) == linked.s.positions.size - 1  # each boundary alone
     assert max(alive) == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_tracks_read_again_from_their_links_are_numbered_as_tracks_from_links_numbers_them(
+    seed: int,
+) -> None:
+    # A forward pass's tracks (numbered by their births, as tracks_from_links numbers them),
+    # the same renumbered, and with a detection left out: read again from their own links,
+    # each is what tracks_from_links makes of them.
+    s = arrange(simulate(preset("medium", miss_probability=0.1), seed=seed).detections, PARAMS)
+    prior = segment_prior(s, PARAMS.max_skip + 1, PARAMS)
+    track, _, _ = link_and_learn(s, PARAMS, prior, prior, 1)
+    renumbered = np.where(track >= 0, track.max() - track, -1)
+    cut = track.copy()
+    cut[s.members(3)[0]] = -1
+    for tracks in (track, renumbered, cut):
+        _, prv = successors(s, tracks)
+        in_track = tracks >= 0
+        again = _tracks_again(s, tracks, prv, in_track)
+        assert np.array_equal(again, tracks_from_links(s, prv, in_track))
+    assert np.array_equal(_tracks_again(s, track, successors(s, track)[1], track >= 0), track)
+
+
+@pytest.mark.parametrize("traffic", [{}, FAULTS, FEATURES])
+def test_running_sums_along_every_track_at_once_are_those_extended_sensor_by_sensor(
+    traffic: dict[str, object],
+) -> None:
+    # Prefix sums (to the last sensor but one, as a sweep that keeps its links extends them)
+    # and suffix sums of each level term, for every track at once or sensor by sensor: the
+    # same numbers to the bit.
+    s = arrange(simulate(preset("medium", **traffic), seed=4).detections, PARAMS)
+    prior = segment_prior(s, PARAMS.max_skip + 1, PARAMS)
+    track, _, _ = link_and_learn(s, PARAMS, prior, prior, 1)
+    nxt, prv = successors(s, track)
+    for value, weight in level_terms(s):
+        at_once = Summed.along(s, value, weight, track)
+        by_sensor = Summed.of(s, value, weight, nxt, track >= 0)
+        for q in range(s.positions.size - 1):
+            m = s.members(q)
+            m = m[prv[m] >= 0]
+            by_sensor.extend_heads(m, prv[m])
+        for field in ("weight", "head_sum", "head_count", "tail_sum", "tail_count"):
+            assert np.array_equal(getattr(at_once, field), getattr(by_sensor, field))
+        assert (at_once.head_count > 1).sum() > 50

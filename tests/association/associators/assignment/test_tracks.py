@@ -4,13 +4,23 @@ chain of detections read both ways."""
 import numpy as np
 import pytest
 
-from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment import (
+    AssignmentAssociator,
+    AssignmentParams,
+    tracks,
+)
+from roadlink.association.associators.assignment.edges import WindowEdges
+from roadlink.association.associators.assignment.gating import Gate
 from roadlink.association.associators.assignment.learning import learn_segments
+from roadlink.association.associators.assignment.matching import match
+from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import refine_boundaries
-from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.associators.assignment.sensors import Sensors, arrange
 from roadlink.association.associators.assignment.tracks import (
+    Foreseen,
+    LevelRelay,
     SweepSetup,
     build_tracks,
     duplicate_followers,
@@ -89,6 +99,19 @@ FAULTS = {"miss_probability": 0.1, "false_alarm_rate": 0.02, "duplicate_probabil
 FEATURES = {"lanes": 3, "vehicle_lengths": True, "length_noise": 0.05, "velocity_noise": 0.03}
 
 
+def second_round(
+    traffic: dict[str, object], seed: int, relay: LevelRelay | None = None
+) -> tuple[AssignmentParams, Sensors, np.ndarray, np.ndarray, SegmentModel]:
+    """A paper-size batch, its first round's tracks (leaving their levels in `relay`) and the
+    model learned from them: the parameters, sensors, leaders, tracks and model."""
+    params = AssignmentParams()
+    s = arrange(simulate(preset("medium", **traffic), seed=seed).detections, params)
+    prior = segment_prior(s, params.max_skip + 1, params)
+    leader = duplicate_followers(s, params)
+    first = build_tracks(s, prior, params, leader, None, 0.0, 1.0, relay=relay)
+    return params, s, leader, first, learn_segments(s, first, params, prior)
+
+
 @pytest.mark.parametrize("traffic", [{}, FAULTS, FEATURES])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_pass_that_foresees_tracks_builds_what_it_builds_without(
@@ -97,12 +120,7 @@ def test_a_pass_that_foresees_tracks_builds_what_it_builds_without(
     # Paper-size batches, the second round's pass: foreseeing the first round's tracks, its
     # own, or its own cut at one sensor (the pass goes on sensor by sensor from there, or from
     # the start), it builds the tracks it builds alone.
-    params = AssignmentParams()
-    s = arrange(simulate(preset("medium", **traffic), seed=seed).detections, params)
-    prior = segment_prior(s, params.max_skip + 1, params)
-    leader = duplicate_followers(s, params)
-    first = build_tracks(s, prior, params, leader, None, 0.0, 1.0)
-    model = learn_segments(s, first, params, prior)
+    params, s, leader, first, model = second_round(traffic, seed)
     plain = build_tracks(s, model, params, leader, None, 0.0, 1.0)
     cut = plain.copy()
     for sensor in (1, s.positions.size // 2, s.positions.size - 1):
@@ -111,6 +129,66 @@ def test_a_pass_that_foresees_tracks_builds_what_it_builds_without(
     for expected in (first, plain, cut, np.full_like(plain, -1)):
         foreseeing = build_tracks(s, model, params, leader, None, 0.0, 1.0, expected=expected)
         assert np.array_equal(foreseeing, plain)
+    # Every sensor's matching solved (none taken as surely the expected tracks'): the same.
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(tracks, "sure_matchings", lambda *args: np.zeros(99, dtype=bool))
+        for expected in (first, plain, cut):
+            solved = build_tracks(s, model, params, leader, None, 0.0, 1.0, expected=expected)
+            assert np.array_equal(solved, plain)
+
+
+@pytest.mark.parametrize("traffic", [{}, FAULTS, FEATURES])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_pass_foresees_with_the_levels_the_pass_before_left_the_costs_it_works_out(
+    traffic: dict[str, object], seed: int
+) -> None:
+    # The second round's pass, foreseeing the first round's tracks: with the levels the first
+    # pass left (`LevelRelay`; its pace worked out again with the learned model) or extended
+    # sensor by sensor, every candidate's cost is the same to the bit.
+    relay = LevelRelay()
+    params, s, _, first, model = second_round(traffic, seed, relay)
+    assert relay.track is first and relay.level is not None
+    gate = Gate.of(s, model, params, params.gate_cost)
+    edges = WindowEdges.of(s, model, params.gate_cost / 2.0)
+    assert gate.every is not None
+    relayed = Foreseen.of(s, model, params, gate.every, edges, None, first, relay)
+    extended = Foreseen.of(s, model, params, gate.every, edges, None, first)
+    assert relayed.cost.size > 50 and np.array_equal(relayed.cost, extended.cost)
+    # Not the tracks the relay holds: the levels are extended anew.
+    other = Foreseen.of(s, model, params, gate.every, edges, None, first.copy(), relay)
+    assert np.array_equal(other.cost, extended.cost)
+
+
+@pytest.mark.parametrize("traffic", [{}, FAULTS, FEATURES])
+@pytest.mark.parametrize(
+    ("name", "seed"), [("medium", 0), ("medium", 1), ("small", 2), ("congested", 0)]
+)
+def test_a_pass_that_prices_every_link_at_once_links_what_it_links_sensor_by_sensor(
+    traffic: dict[str, object], name: str, seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Every sensor's links gated at once, the whole associator: with each link's affordability,
+    # edges and anchor's bonus worked out once a pass (`Priced`), or sensor by sensor as before
+    # (`Priced.of` made to offer none), every matching of the passes is given the same
+    # candidates at the same costs, to the last bit, and the groups and link confidences are
+    # the same.
+    d = simulate(preset(name, **traffic), seed=seed).detections
+    params = AssignmentParams(gate_cost=40.0)  # a wider gate: more candidates near the edges
+    seen: list[list[tuple[np.ndarray, ...]]] = [[], []]
+    for run in seen:
+
+        def recorded(a: np.ndarray, b: np.ndarray, cost: np.ndarray, gate: float) -> object:
+            run.append((a.copy(), b.copy(), cost.copy()))  # noqa: B023 (this run's record)
+            return match(a, b, cost, gate)
+
+        monkeypatch.setattr(tracks, "match", recorded)
+        associator = AssignmentAssociator(params)
+        run.append((associator.group(d), associator.link_confidence))
+        monkeypatch.setattr(tracks.Priced, "of", lambda *args: None)
+    assert len(seen[0]) == len(seen[1]) >= 10
+    for at_once, apart in zip(seen[0], seen[1], strict=True):
+        assert all(
+            np.array_equal(x, y, equal_nan=True) for x, y in zip(at_once, apart, strict=True)
+        )
 
 
 @pytest.mark.parametrize("window", [0.5, 5.0, 60.0])

@@ -12,6 +12,7 @@ from roadlink.association.associators.assignment.anchors import (
     lane_order_anchors,
     weigh_anchors,
 )
+from roadlink.association.associators.assignment.arrays import filled, same
 from roadlink.association.associators.assignment.confidence import (
     cut_weak_links,
     link_confidence,
@@ -27,6 +28,7 @@ from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import refine_boundaries
 from roadlink.association.associators.assignment.sensors import Sensors, arrange
 from roadlink.association.associators.assignment.tracks import (
+    LevelRelay,
     SweepSetup,
     build_tracks,
     duplicate_followers,
@@ -104,6 +106,7 @@ def link_and_learn(
     # Without lengths a chain drawn again would be the same.
     redraw = s.features is not None and s.features.has_length()
     learned_from = None  # the tracks the current model was learned from, with these anchors
+    relay = LevelRelay()  # the last pass's tracks and their levels, for the next to foresee
     for r in range(rounds):
         final = learned_from is not None or r + 1 == rounds  # perhaps the sweep's model
         track = build_tracks(
@@ -117,8 +120,9 @@ def link_and_learn(
             anchor,
             sweep if final and params.refine_sweeps > 0 else None,
             learned_from,
+            relay,
         )
-        if learned_from is not None and np.array_equal(track, learned_from):
+        if learned_from is not None and same(track, learned_from):
             if passes.progress:
                 passes.progress(rounds / passes.total)
             break
@@ -166,7 +170,7 @@ def repair_and_judge(
     changes none leaves every later sweep the same work, so the loop ends there with its
     judging (on a paper-size batch the first sweep usually changes nothing). Every sweep takes
     its gating and edges from `setup` where the forward pass worked them out with this model."""
-    confidence = np.full(track.size, np.nan)
+    confidence = filled(track.size, np.nan)
     for sweep in range(params.refine_sweeps):
         last = sweep + 1 == params.refine_sweeps
         track, changed = refine_boundaries(

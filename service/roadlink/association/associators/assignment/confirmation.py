@@ -7,6 +7,7 @@ import numpy as np
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.gating import Pairs
+from roadlink.association.associators.assignment.matching import unique_inverse
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import incoming_pace
 from roadlink.association.associators.assignment.params import (
@@ -57,7 +58,7 @@ def confirm_targets(
     )
     good = convincing & long_enough
     keep = chain[good[ids]]
-    _, out[keep] = np.unique(track[keep], return_inverse=True)
+    _, out[keep] = unique_inverse(track[keep])  # np.unique's, quicker on a few
     return out
 
 
@@ -85,7 +86,9 @@ def track_evidence(
         before.pace = incoming_pace(model.pace, s, prv, a)
     pairs = Pairs.between(s, model, params, a, b)
     # An anchored link was made for its lane order (`anchors`): that is evidence too.
-    cost = link_cost(params, model, pairs, before, after, s) - anchor_bonus(pairs, anchors)
+    cost = link_cost(params, model, pairs, before, after, s)
+    if anchors is not None:  # else a bonus of 0, which changes no cost
+        cost = cost - anchor_bonus(pairs, anchors)
     saving = params.gate_cost - cost
     evidence = np.bincount(ids[linked], weights=np.maximum(saving, 0.0), minlength=ids.max() + 1)
     return np.asarray(evidence, dtype=np.float64)

@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from roadlink.association.associators.assignment.features import feature_cost
-from roadlink.association.associators.assignment.gating import Pairs
+from roadlink.association.associators.assignment.gating import BoolArray, Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import Neighbour, pace_cost
 from roadlink.association.associators.assignment.params import AssignmentParams
@@ -97,11 +97,20 @@ def affordable(
     matching (`cost < gate`) would drop it. At 10^6 detections that is about half of a forward
     pass's candidates, whose other terms are then not worked out."""
     own = pairs.own_cost(model, params)
-    pairs = replace(pairs, own=own)
+    if pairs.own is None:
+        pairs = replace(pairs, own=own)
+    keep = affordable_links(params, model, own, s, bonus)
+    return pairs if keep is None or keep.all() else pairs.take(keep)
+
+
+def affordable_links(
+    params: AssignmentParams, model: SegmentModel, own: FloatArray, s: Sensors, bonus: float
+) -> BoolArray | None:
+    """Which links `affordable` keeps, by their own costs (None: every one)."""
     if s.features is not None and model.features is not None and params.feature_weight > 0:
-        return pairs
-    keep = own < params.gate_cost + bonus + ROUNDING_MARGIN
-    return pairs if keep.all() else pairs.take(keep)
+        return None
+    keep: BoolArray = own < params.gate_cost + bonus + ROUNDING_MARGIN
+    return keep
 
 
 def _or_zeros(values: FloatArray | None, n: int) -> FloatArray:

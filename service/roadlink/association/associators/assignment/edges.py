@@ -174,11 +174,11 @@ def _near_at_once(s: Sensors, sensors: range, bound: FloatArray, before: bool) -
     ends.real = q
     ends.imag = bound
     if before:
-        lo, hi = s.start[q], np.searchsorted(keys, ends, side="left")
+        lo, hi = s.start[q], keys.searchsorted(ends, side="left")
     else:
-        lo, hi = np.searchsorted(keys, ends, side="right"), s.start[q + 1]
+        lo, hi = keys.searchsorted(ends, side="right"), s.start[q + 1]
     count = hi - lo
-    at = np.repeat(lo - (np.cumsum(count) - count), count)
+    at = (lo - (count.cumsum() - count)).repeat(count)
     at += np.arange(at.size)
     near: IntArray = s.order[at]
     return near

@@ -8,6 +8,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import numpy.typing as npt
 
+from roadlink.association.associators.assignment.arrays import filled
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import FASTEST_SHARE, AssignmentParams
 from roadlink.association.associators.assignment.sensors import Sensors, travel_time
@@ -241,7 +242,7 @@ def _within_gate(
     """The links from each of d's departures to `count` places of `slot` (places in s.order;
     None: the places themselves) from its `first` on, those whose travel time alone is within
     the gate: GATE_CHUNK candidates at a time (or the departures of one that has more)."""
-    ends = np.cumsum(count)
+    ends = count.cumsum()
     if ends.size == 0 or ends[-1] <= GATE_CHUNK:
         return _within_gate_chunk(s, model, params, d, slot, first, count, gate)
     cuts = np.searchsorted(ends, np.arange(GATE_CHUNK, ends[-1], GATE_CHUNK), side="right")
@@ -267,24 +268,24 @@ def _within_gate_chunk(
     gate: float,
 ) -> Pairs:
     """`_within_gate` of one chunk."""
-    which = np.repeat(np.arange(d.a.size), count)  # the departure of every candidate
-    at = np.repeat(first - (np.cumsum(count) - count), count)
+    which = np.arange(d.a.size).repeat(count)  # the departure of every candidate
+    at = (first - (count.cumsum() - count)).repeat(count)
     at += np.arange(which.size)
     if slot is not None:
         at = slot[at]
     # A departure's numbers repeated for each of its candidates (np.repeat: quicker than
     # indexing by `which`, the same numbers).
-    predicted = np.repeat(d.to_b, count)
+    predicted = d.to_b.repeat(count)
     predicted *= s.sorted_inverse_speed[at]
-    np.add(np.repeat(d.from_a, count), predicted, out=predicted)
+    np.add(d.from_a.repeat(count), predicted, out=predicted)
     travel = s.sorted_time[at]
-    travel -= np.repeat(s.time[d.a], count)
+    travel -= s.time[d.a].repeat(count)
     ratio = s.sorted_log_speed[at]
-    ratio -= np.repeat(d.centre, count)
-    variance = np.repeat(d.time_spread * d.time_spread, count)
+    ratio -= d.centre.repeat(count)
+    variance = (d.time_spread * d.time_spread).repeat(count)
     r_time = standardised(params, predicted, travel, ratio, variance)
-    within = model.time_tails.within(r_time, np.repeat(d.span, count), params.miss_cost, gate)
-    keep = np.flatnonzero(within)  # once: quicker than the mask for each array (`Pairs.take`)
+    within = model.time_tails.within(r_time, d.span.repeat(count), params.miss_cost, gate)
+    keep = within.nonzero()[0]  # once: quicker than the mask for each array (`Pairs.take`)
     kept = which[keep]
     return Pairs(
         d.a[kept],
@@ -349,7 +350,7 @@ class EverySensor:
         # Each link's own cost, once for the pass (numpy's fixed cost per call, not the links,
         # is a paper-size batch's work: a dozen calls for every sensor otherwise).
         pairs.own = pairs.own_cost(model, params)
-        return cls(pairs, np.searchsorted(s.sensor[pairs.b], np.arange(n_sensors + 1)), n)
+        return cls(pairs, s.sensor[pairs.b].searchsorted(np.arange(n_sensors + 1)), n)
 
     def narrowed(
         self, s: Sensors, model: SegmentModel, params: AssignmentParams, gate: float
@@ -372,22 +373,30 @@ class EverySensor:
         keep &= lo <= arrival
         keep &= arrival <= hi
         kept = pairs.take(keep)
-        bounds = np.searchsorted(s.sensor[kept.b], np.arange(s.positions.size + 1))
+        bounds = s.sensor[kept.b].searchsorted(np.arange(s.positions.size + 1))
         return EverySensor(kept, bounds, self.detections)
 
     def into(self, q: int, a: IntArray, among: BoolArray | None = None) -> Pairs:
         """`gated_pairs` from detections a (within reach of q) to sensor q (to those `among`)."""
+        place = self.places(q, a, among)
+        return self.pairs.take(place) if place.size else Pairs.none()
+
+    def places(
+        self, q: int, a: IntArray, among: BoolArray | None = None, usable: BoolArray | None = None
+    ) -> IntArray:
+        """Where `into`'s links lie in `pairs`, in its order; only `usable` ones, where given."""
         lo, hi = int(self.bounds[q]), int(self.bounds[q + 1])
-        rank = np.full(self.detections, -1)
+        rank = filled(self.detections, -1, np.int64)
         rank[a] = np.arange(a.size)
         order = rank[self.pairs.a[lo:hi]]
         keep = order >= 0
         if among is not None:
             keep &= among[self.pairs.b[lo:hi]]
-        kept = np.flatnonzero(keep)
-        if kept.size == 0:
-            return Pairs.none()
-        return self.pairs.take(lo + kept[np.argsort(order[kept], kind="stable")])
+        if usable is not None:
+            keep &= usable[lo:hi]
+        kept = keep.nonzero()[0]
+        place: IntArray = lo + kept[order[kept].argsort(kind="stable")]
+        return place
 
     def across(self, k: int, end: int, tails: IntArray, among: BoolArray) -> Pairs:
         """`into(q, tails, among)` for every q from k to end - 1, one after another, where the
@@ -397,7 +406,7 @@ class EverySensor:
         is_tail = np.zeros(self.detections, dtype=bool)
         is_tail[tails] = True
         keep = is_tail[self.pairs.a[lo:hi]] & among[self.pairs.b[lo:hi]]
-        return self.pairs.take(lo + np.flatnonzero(keep))
+        return self.pairs.take(lo + keep.nonzero()[0])
 
 
 def _inverse_speed_range(s: Sensors) -> tuple[FloatArray, FloatArray]:
@@ -425,8 +434,8 @@ def _arrivals_between(
         ends.imag[0] = lo
         ends.imag[1] = hi
         if not np.isnan(ends.imag).any():
-            first = np.searchsorted(keys, ends[0], side="left")
-            last = np.searchsorted(keys, ends[1], side="right")
+            first = keys.searchsorted(ends[0], side="left")
+            last = keys.searchsorted(ends[1], side="right")
             return first, np.maximum(last - first, 0)
     n, m = s.time.size, q.size
     sensor = np.concatenate([s.sensor[s.order], q, q])

@@ -5,6 +5,8 @@ A generic solver: it knows edges and their costs, nothing of detections or track
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -70,14 +72,14 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     (LAPJVsp's shortest-path phase costs in proportion to the graph for every free row, so one
     huge call would be quadratic).
     """
-    keep = np.flatnonzero(cost < gate)  # places, once: quicker than the mask three times
+    keep = (cost < gate).nonzero()[0]  # places, once: quicker than the mask three times
     left, right, cost = left[keep], right[keep], cost[keep]
     if left.size == 0:
         return left, right
     if 2 * left.size <= DENSE_NODES and _distinct(left) and _distinct(right):
         # No two edges share a node, and each beats leaving its ends alone: all are taken (by
         # left, as the dense assignment returns them; the lefts' ranks sort as the lefts).
-        by_left = np.argsort(left)
+        by_left = left.argsort()
         return left[by_left], right[by_left]
     lu, li = unique_inverse(left)
     ru, ri = unique_inverse(right)
@@ -97,6 +99,57 @@ def match(left: Nodes, right: Nodes, cost: Costs, gate: float) -> tuple[Nodes, N
     order, cuts = _component_batches(np.flatnonzero(~alone), edge_part, edges_in_part)
     taken_l, taken_r = _match_batches(li, ri, cost, gate / 2.0, order, cuts)
     return lu[np.concatenate([li[alone], *taken_l])], ru[np.concatenate([ri[alone], *taken_r])]
+
+
+# How much cheaper each chosen edge must be than every rival at its nodes, and than leaving its
+# ends alone, for `sure_matchings` to call it certain: far beyond a dense assignment's rounding
+# (~1e-13 on costs of a gate's size) and the sparse one's quantum (1 / COST_QUANTUM_INVERSE),
+# so that no solver's ties or rounding could prefer another matching.
+SURE_MARGIN = 8.0 / COST_QUANTUM_INVERSE
+SURE_TABLE = 16  # `sure_matchings`' nodes by id up to this many times as many as its edges
+
+
+def sure_matchings(
+    left: Nodes, right: Nodes, cost: Costs, group: Nodes, chosen: Mask, gate: float, groups: int
+) -> Mask:
+    """For `groups` independent matchings (edge i belongs to matching `group[i]`; node ids are a
+    matching's own), whether `match` of each surely takes exactly its `chosen`
+    edges under the gate, so that it need not be solved.
+
+    It does where the chosen edges share no node, every node with an edge under the gate has a
+    chosen one, and each chosen edge beats by SURE_MARGIN every other edge at its nodes and
+    leaving its ends alone (the gate): then every node fares strictly better in the chosen
+    matching than in any other (an edge's cost split between its ends, gate / 2 for a node
+    alone), which is the one optimum. A paper-size batch's forward pass that rebuilds the round
+    before's tracks, and a sweep that keeps its links, are mostly such matchings."""
+    under = cost < gate
+    chosen = chosen & under
+    # Each node numbered among all matchings' nodes: by matching and id where that table is
+    # short, else by rank (a road of many sensors has many matchings of few nodes; the table
+    # stays within a few times the edges).
+    width = int(max(left.max(initial=-1), right.max(initial=-1))) + 1
+    left_key, right_key = group * width + left, group * width + right
+    size = groups * width
+    if size > SURE_TABLE * (left.size + 1):
+        left_key, right_key = unique_inverse(left_key)[1], unique_inverse(right_key)[1]
+        size = left.size
+    at_left = np.empty(size)  # the chosen edge's cost at each node, NaN: none
+    at_left.fill(np.nan)
+    at_right = at_left.copy()
+    at_left[left_key[chosen]] = cost[chosen]
+    at_right[right_key[chosen]] = cost[chosen]
+    # Every other edge under the gate costs more than the chosen ones at both its ends (NaN,
+    # a node without a chosen edge, compares false).
+    rival = under & ~chosen
+    ok = ~rival | (
+        (cost > at_left[left_key] + SURE_MARGIN) & (cost > at_right[right_key] + SURE_MARGIN)
+    )
+    ok &= ~chosen | (cost < gate - SURE_MARGIN)
+    # No node in two chosen edges.
+    ok &= ~chosen | (np.bincount(left_key[chosen], minlength=at_left.size)[left_key] == 1)
+    ok &= ~chosen | (np.bincount(right_key[chosen], minlength=at_left.size)[right_key] == 1)
+    sure: Mask = np.bincount(group[~ok], minlength=groups) == 0
+    return sure
 
 
 def _component_batches(
@@ -125,18 +178,26 @@ def _match_dense(
     at no cost, which always leaves exactly as many free dummy rows as free dummy columns.
     """
     size = n_l + n_r
-    square = np.full((size, size), np.inf)
+    square = np.empty((size, size))  # np.full's array, without its Python-level steps
+    square.fill(np.inf)
     square[li, ri] = cost
     # The dummies' diagonals, (l, n_r + l) and (n_l + r, r), as strided runs of the flat square.
     flat = square.reshape(-1)
     flat[n_r : n_r + n_l * (size + 1) : size + 1] = alone
     flat[n_l * size : n_l * size + n_r * (size + 1) : size + 1] = alone
     square[n_l:, n_r:] = 0.0
-    from scipy.optimize import linear_sum_assignment  # on first use, as in `match`
-
-    row, col = linear_sum_assignment(square)
+    row, col = _dense_solver()(square)
     real = (row < n_l) & (col < n_r)
     return row[real], col[real]
+
+
+@functools.cache
+def _dense_solver() -> Callable[[Costs], tuple[Nodes, Nodes]]:
+    """scipy's dense assignment, imported on first use (as in `match`), once: an import
+    statement costs a microsecond each time, and a paper-size batch makes some thirty."""
+    from scipy.optimize import linear_sum_assignment
+
+    return linear_sum_assignment
 
 
 def _match_batches(

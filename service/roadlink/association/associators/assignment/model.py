@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
+from roadlink.association.associators.assignment.arrays import filled
 from roadlink.association.associators.assignment.features import FeatureModel
 from roadlink.association.associators.assignment.params import (
     TAIL_EM_ITERATIONS,
@@ -75,12 +76,12 @@ class Tails:
         surely pass and those that surely fail."""
         size = np.abs(r)
         top = int(span.max(initial=0))
-        sure = np.full(top + 1, -np.inf)
-        unsure = np.full(top + 1, -np.inf)
+        sure = filled(top + 1, -np.inf)
+        unsure = filled(top + 1, -np.inf)
         for k in range(1, top + 1):
             sure[k], unsure[k] = _limits(self.weight, self.scale, miss_cost * (k - 1), gate)
         keep = size < sure[span]
-        near = np.flatnonzero(~keep & (size <= unsure[span]))
+        near = (~keep & (size <= unsure[span])).nonzero()[0]
         if near.size:
             keep[near] = self.cost(r[near]) + miss_cost * (span[near] - 1) < gate
         return keep
@@ -111,7 +112,7 @@ class Tails:
             np.exp(share, out=share)
             total = float(np.add.reduce(share))  # share.sum(), without its Python wrapper
             w = min(max(total / z2.size, TAIL_WEIGHT_RANGE[0]), TAIL_WEIGHT_RANGE[1])
-            s = math.sqrt(float(share @ z2) / max(total, 1e-9))
+            s = math.sqrt(float(share.dot(z2)) / max(total, 1e-9))  # `@`'s BLAS dot, quicker
             s = min(max(s, TAIL_MIN_SCALE), TAIL_MAX_SCALE)
             if abs(w - before[0]) < weight_tolerance and abs(s - before[1]) < scale_tolerance:
                 break

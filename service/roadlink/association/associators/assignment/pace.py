@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from roadlink.association.associators.assignment.arrays import filled
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import (
@@ -101,7 +102,7 @@ class Neighbour:
 
     @classmethod
     def unknown(cls, n: int) -> Neighbour:
-        return cls(*(np.full(n, np.nan) for _ in range(4)))
+        return cls(*(filled(n, np.nan) for _ in range(4)))
 
     def take(self, index: IntArray) -> Neighbour:
         return Neighbour(

@@ -144,14 +144,44 @@ def few_targets_priors(s: Sensors, samples: list[IntArray], q: IntArray) -> Floa
     few = FewPairs.of(s, [samples[k] for k in ready], q[ready])
     n = len(ready)
     counts = bin_counts(few.values, few.value_of, n).reshape(n, PRIOR_BINS.size - 1)
-    values = np.split(few.values, np.cumsum(np.bincount(few.value_of, minlength=n))[:-1])
-    for k in np.flatnonzero(few.pairs).tolist():
+    some = few.pairs.nonzero()[0].tolist()
+    if not some:
+        return prior
+    excess = np.empty((len(some), PRIOR_BINS.size - 1))
+    for row, k in enumerate(some):
         thinning = 1.0 if few.any_ahead[k] else 0.0
         background = thinning * few.rates[k] * few.typical_sums[k] * PRIOR_BIN_GROWTH
-        excess = np.convolve(counts[k] - background, PRIOR_SMOOTHING, mode="same")
-        if excess.max() > 0:
-            prior[ready[k]] = BiasHistogram(values[k], excess, excess).centre()
+        excess[row] = np.convolve(counts[k] - background, PRIOR_SMOOTHING, mode="same")
+    # Each mode as `BiasHistogram.centre` finds it, for all segments at once.
+    seen = excess.max(axis=1) > 0
+    modes = excess_centres(few.values, few.value_of, np.array(some)[seen], excess[seen], n)
+    prior[np.array(ready)[np.array(some)[seen]]] = modes
     return prior
+
+
+def excess_centres(
+    values: FloatArray, value_of: IntArray, which: IntArray, excess: FloatArray, n: int
+) -> FloatArray:
+    """`BiasHistogram(values of k, excess[i], ...).centre()` of each segment k = which[i]: the
+    median of its values near its highest excess, or that bin's middle where none is near
+    (`values` run segment by segment, `value_of` saying whose; `n` segments in all)."""
+    best = excess.argmax(axis=1)
+    peak = np.zeros(n)
+    peak[which] = 0.5 * (PRIOR_BINS[best] + PRIOR_BINS[best + 1])
+    mine = np.zeros(n, dtype=bool)
+    mine[which] = True
+    near = np.abs(values - peak[value_of]) <= PRIOR_PEAK_BINS * PRIOR_BIN
+    near &= mine[value_of]
+    sizes = np.bincount(value_of[near], minlength=n)[which]
+    centre = peak[which]
+    some = sizes > 0
+    if some.any():
+        medians = run_medians(values[near], sizes[some])
+        if medians is None:
+            runs = np.split(values[near], np.cumsum(sizes[some])[:-1])
+            medians = np.array([median(run) for run in runs])
+        centre[some] = medians
+    return centre
 
 
 @dataclass
@@ -185,20 +215,18 @@ class FewPairs:
         )
         reach += shift[own]
         earliest, latest = s.time[a] - shift[own], s.time[a] + reach
-        first, count = np.empty_like(a), np.empty_like(a)
-        rates, typical_sums = [], []
-        for qk, lo_a, hi_a in zip(
-            q.tolist(), bounds.tolist(), (bounds + sizes).tolist(), strict=True
-        ):
-            lo, hi = int(s.start[qk]), int(s.start[qk + 1])
-            times = s.sorted_time[lo:hi]
-            first[lo_a:hi_a] = np.searchsorted(times, earliest[lo_a:hi_a], side="right")
-            count[lo_a:hi_a] = np.searchsorted(times, latest[lo_a:hi_a]) - first[lo_a:hi_a]
-            first[lo_a:hi_a] += lo
-            span_of_time = float(times[-1] - times[0])
-            rates.append((hi - lo - 1) / span_of_time if span_of_time > 0 else 0.0)
-            typical_sums.append(float(typical[lo_a:hi_a].sum()))
+        first, count = _arrivals_within(s, q, own, (bounds, sizes), (earliest, latest))
         np.maximum(count, 0, out=count)
+        lo, hi = s.start[q], s.start[q + 1]
+        span_of_time = (s.sorted_time[hi - 1] - s.sorted_time[lo]).tolist()
+        rates = [
+            (h - lo_q - 1) / span if span > 0 else 0.0
+            for lo_q, h, span in zip(lo.tolist(), hi.tolist(), span_of_time, strict=True)
+        ]
+        typical_sums = [
+            float(np.add.reduce(typical[lo_a:hi_a]))  # each segment's own (pairwise) sum
+            for lo_a, hi_a in zip(bounds.tolist(), (bounds + sizes).tolist(), strict=True)
+        ]
         pa = np.repeat(a, count)
         at = (
             np.repeat(first, count)
@@ -220,6 +248,40 @@ class FewPairs:
             rates,
             typical_sums,
         )
+
+
+def _arrivals_within(
+    s: Sensors,
+    q: IntArray,
+    own: IntArray,
+    runs: tuple[IntArray, IntArray],
+    window: tuple[FloatArray, FloatArray],
+) -> tuple[IntArray, IntArray]:
+    """For each sample detection (`own`: its segment, whose far sensor is q[own]; segment k's
+    are `runs` (bounds, sizes)[k]), the place in s.order of the first arrival at its far sensor
+    after `window[0]`, and how many arrive from there up to `window[1]` (less than 0 where
+    none): `searchsorted` in the sensor's times, right at the window's start and left at its
+    end. Every segment's at once among the arrivals as (sensor, time) (`Sensors.arrival_keys`,
+    as `gating._arrivals_between` finds them), where no time is NaN; else segment by segment."""
+    earliest, latest = window
+    keys = s.arrival_keys
+    if keys is not None:
+        ends = np.empty((2, own.size), dtype=np.complex128)
+        ends.real = q[own]
+        ends.imag[0] = earliest
+        ends.imag[1] = latest
+        if not np.isnan(ends.imag).any():
+            first = keys.searchsorted(ends[0], side="right")
+            return first, keys.searchsorted(ends[1], side="left") - first
+    first, count = np.empty_like(own), np.empty_like(own)
+    bounds, sizes = runs
+    for qk, lo_a, hi_a in zip(q.tolist(), bounds.tolist(), (bounds + sizes).tolist(), strict=True):
+        lo, hi = int(s.start[qk]), int(s.start[qk + 1])
+        times = s.sorted_time[lo:hi]
+        first[lo_a:hi_a] = times.searchsorted(earliest[lo_a:hi_a], side="right")
+        count[lo_a:hi_a] = times.searchsorted(latest[lo_a:hi_a]) - first[lo_a:hi_a]
+        first[lo_a:hi_a] += lo
+    return first, count
 
 
 @dataclass
@@ -368,7 +430,7 @@ class BiasHistogram:
 
     def centre(self) -> float:
         """The log bias at the highest excess: the median of the values near it."""
-        best = int(np.argmax(self.excess))
+        best = int(self.excess.argmax())
         peak = 0.5 * (PRIOR_BINS[best] + PRIOR_BINS[best + 1])
         near = self.values[np.abs(self.values - peak) <= PRIOR_PEAK_BINS * PRIOR_BIN]
         return float(median(near)) if near.size else float(peak)

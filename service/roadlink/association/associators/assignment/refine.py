@@ -7,10 +7,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from roadlink.association.associators.assignment.anchors import Anchors, anchor_bonus
+from roadlink.association.associators.assignment.arrays import same
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import EverySensor, Gate, Pairs
-from roadlink.association.associators.assignment.matching import chosen_marginals, match
+from roadlink.association.associators.assignment.matching import (
+    chosen_marginals,
+    match,
+    sure_matchings,
+)
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.pace import incoming_pace, outgoing_pace
 from roadlink.association.associators.assignment.params import (
@@ -70,11 +75,11 @@ def refine_boundaries(
         gate, edges = ready
     if gate.every is not None:
         unchanged = Unchanged(s, model, params, gate.every, gate.gate, edges, anchor)
-        kept = unchanged.sweep((nxt, prv), in_track, relink)
+        kept = unchanged.sweep(track, (nxt, prv), relink)
         if kept is not None:
             if confidence is not None:
                 judge_links(confidence, kept, params.gate_cost)
-            return tracks_from_links(s, prv, in_track), False
+            return _tracks_again(s, track, prv, in_track), False
     levels = [Summed.of(s, values, weights, nxt, in_track) for values, weights in level_terms(s)]
     changed = False
     judging = None if confidence is None else Judging(confidence, params.gate_cost)
@@ -115,6 +120,17 @@ def refine_boundaries(
 Judged = tuple[Pairs, FloatArray, BoolArray]
 
 
+def _tracks_again(s: Sensors, track: IntArray, prv: IntArray, in_track: BoolArray) -> IntArray:
+    """`tracks_from_links(s, prv, in_track)` of the links `track` holds (`successors`): the same
+    tracks, which it numbers by their first detections in s.order's order. The forward pass
+    numbers its births so, so where `track` already does, it is the answer (its detections out of
+    a track at -1); else they are worked out sensor by sensor."""
+    first = s.order[(in_track & (prv < 0))[s.order]]
+    if same(track[first], np.arange(first.size)):
+        return np.where(in_track, track, -1)
+    return tracks_from_links(s, prv, in_track)
+
+
 @dataclass(frozen=True)
 class Unchanged:
     """A sweep worked out at once for every boundary, as if no boundary changed a link: on a
@@ -138,35 +154,40 @@ class Unchanged:
     anchor: Anchors | None
 
     def sweep(
-        self, links: tuple[IntArray, IntArray], in_track: BoolArray, relink: bool
+        self, track: IntArray, links: tuple[IntArray, IntArray], relink: bool
     ) -> list[Judged] | None:
         """Each boundary's candidates, costs and kept links (`Judged`), in the sweep's order,
-        if no boundary changes a link (`relink=False`: none does); else None."""
-        s, (nxt, prv) = self.s, links
+        if no boundary changes a link (`relink=False`: none does); else None. `links` are the
+        `track`s' (`successors`)."""
+        s, (nxt, _) = self.s, links
         n_sensors = s.positions.size
+        in_track = track >= 0
         tails, crossing, heads = self.ends(links, in_track)
         pairs, boundary = self.candidates(links, in_track)
-        levels = [Summed.of(s, v, w, nxt, in_track) for v, w in level_terms(s)]
-        for q in range(n_sensors - 1):
-            m = s.members(q)
-            m = m[prv[m] >= 0]
-            for level in levels:
-                level.extend_heads(m, prv[m])
+        levels = [Summed.along(s, v, w, track) for v, w in level_terms(s)]
         cost = boundary_cost(self.params, self.model, pairs, levels, s, links)
-        cost -= anchor_bonus(pairs, self.anchor)
+        if self.anchor is not None:  # else a bonus of 0, which changes no cost
+            cost -= anchor_bonus(pairs, self.anchor)
         cost += self.edges.cost(pairs) + self.fragment_ends(boundary, links, pairs)
         cuts = np.searchsorted(boundary, np.arange(1, n_sensors + 1)).tolist()
+        kept = nxt[pairs.a] == pairs.b
+        # Boundaries whose matching surely keeps the links (by k, from 0), unsolved.
+        sure = sure_matchings(pairs.a, pairs.b, cost, boundary, kept, self.gate, n_sensors)
         judged: list[Judged] = []
         for i in np.flatnonzero((tails > 0) & (heads > 0)).tolist():
             lo, hi = cuts[i], cuts[i + 1]
             here = pairs.part(lo, hi)
-            if relink:
+            if relink and not sure[i + 1]:
                 # The boundary keeps its links if it links every tail that has a successor,
                 # to that successor, and no other.
                 linked_a, linked_b = match(here.a, here.b, cost[lo:hi], self.gate)
-                if linked_a.size != crossing[i] or not np.array_equal(nxt[linked_a], linked_b):
+                if linked_a.size != crossing[i] or not same(nxt[linked_a], linked_b):
                     return None
-            judged.append((here, cost[lo:hi], nxt[here.a] == here.b))
+            elif (
+                relink and np.count_nonzero(kept[lo:hi] & (cost[lo:hi] < self.gate)) != crossing[i]
+            ):
+                return None  # a crossing link the matching cannot take (no candidate, or gated)
+            judged.append((here, cost[lo:hi], kept[lo:hi]))
         return judged
 
     def ends(
@@ -338,6 +359,35 @@ class Summed:
         weight = np.where(in_track, weight, 0.0)
         tail_sum, tail_count = suffix_sums(s, nxt, value * weight, weight)
         return cls(value, weight, value * weight, weight.copy(), tail_sum, tail_count)
+
+    @classmethod
+    def along(cls, s: Sensors, value: FloatArray, weight: FloatArray, track: IntArray) -> Summed:
+        """`of`, with every head extended as a sweep that changes no link extends them (to the
+        last sensor but one), the same numbers: a prefix's sum is its track's running sum, and
+        a suffix's the running sum from its end, each one added as `extend_heads` and
+        `suffix_sums` add it (IEEE addition commutes), for every track at once, row by row of
+        one padded array (the tracks by their detections in road order)."""
+        in_track = track >= 0
+        weight = np.where(in_track, weight, 0.0)
+        terms = np.stack([value * weight, weight])
+        chain = s.by_track(in_track.nonzero()[0], track)
+        ids = track[chain]
+        new = np.ones(chain.size, dtype=bool)
+        np.not_equal(ids[1:], ids[:-1], out=new[1:])
+        row = new.cumsum() - 1
+        start = new.nonzero()[0]
+        column = np.arange(chain.size) - start[row]
+        size = np.diff(np.append(start, chain.size))
+        backwards = size[row] - 1 - column
+        padded = np.zeros((2, 2, start.size, int(size.max(initial=0))))
+        padded[0][:, row, column] = terms[:, chain]
+        padded[1][:, row, backwards] = terms[:, chain]
+        running = padded.cumsum(axis=3)
+        head, tail = terms.copy(), terms.copy()
+        extended = s.sensor[chain] < s.positions.size - 1
+        head[:, chain[extended]] = running[0][:, row, column][:, extended]
+        tail[:, chain] = running[1][:, row, backwards]
+        return cls(value, weight, head[0], head[1], tail[0], tail[1])
 
     def extend_heads(self, m: IntArray, before: IntArray) -> None:
         """Detections m now follow `before` in their tracks."""

@@ -39,9 +39,10 @@ def _partitioned_middle(array: FloatArray) -> float | None:
     n = array.size
     mid = n // 2
     part = np.partition(array, mid)
-    if np.isnan(part[mid:]).any():
+    # The ufuncs' reductions: what .any() and .max() come down to, without their wrappers.
+    if np.logical_or.reduce(np.isnan(part[mid:])):
         return None
-    return float(part[mid]) if n % 2 else float((part[:mid].max() + part[mid]) / 2.0)
+    return float(part[mid]) if n % 2 else float((np.maximum.reduce(part[:mid]) + part[mid]) / 2.0)
 
 
 def centre_and_spread(values: FloatArray) -> tuple[float, float]:
@@ -92,19 +93,21 @@ def run_medians(values: FloatArray, sizes: IntArray) -> FloatArray | None:
 
     A paper-size batch has a few dozen short runs: numpy's fixed cost per call, run after run,
     was the work. Long runs are quicker one by one (a partition each, no padding)."""
-    if sizes.max() > SHORT_ARRAY or not np.isfinite(values).all():
+    longest = int(np.maximum.reduce(sizes))  # sizes.max(), without its wrapper
+    if longest > SHORT_ARRAY or not np.logical_and.reduce(np.isfinite(values), axis=None):
         return None
     n_runs = sizes.size
-    row = np.arange(values.shape[0]) - np.repeat(np.cumsum(sizes) - sizes, sizes)
-    padded = np.full((n_runs, int(sizes.max()), *values.shape[1:]), np.inf)
-    padded[np.repeat(np.arange(n_runs), sizes), row] = values
+    row = np.arange(values.shape[0]) - (sizes.cumsum() - sizes).repeat(sizes)
+    padded = np.empty((n_runs, longest, *values.shape[1:]))
+    padded.fill(np.inf)
+    padded[np.arange(n_runs).repeat(sizes), row] = values
     padded.sort(axis=1)
     mid = sizes // 2
     upper = padded[np.arange(n_runs), mid]
     lower = padded[np.arange(n_runs), np.maximum(mid - 1, 0)]
     odd = (sizes % 2 == 1).reshape(-1, *([1] * (values.ndim - 1)))
     middle: FloatArray = np.where(odd, upper, (lower + upper) / 2.0)
-    if (middle == 0.0).any():
+    if np.logical_or.reduce(middle == 0.0, axis=None):
         return None
     return middle
 

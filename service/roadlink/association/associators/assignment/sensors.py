@@ -52,9 +52,17 @@ class Sensors:
     median_speed: FloatArray  # the median (floored) speed at each sensor
     features: SensorFeatures | None = None  # lane, length, class, where detectors report them
     _reaching: dict[int, tuple[IntArray, IntArray]] = field(default_factory=dict, repr=False)
+    _starts: list[int] = field(default_factory=list, repr=False)  # `start` as Python ints
 
     def members(self, k: int) -> IntArray:
-        return self.order[self.start[k] : self.start[k + 1]]
+        # Sliced by Python ints: a paper-size batch asks a hundred times, and numpy's integers
+        # cost more to slice by than the slice itself.
+        starts = self._starts or self._python_starts()
+        return self.order[starts[k] : starts[k + 1]]
+
+    def _python_starts(self) -> list[int]:
+        self._starts.extend(self.start.tolist())
+        return self._starts
 
     @cached_property
     def first_time(self) -> FloatArray:
@@ -105,7 +113,7 @@ class Sensors:
         track holds at most one detection per sensor, so no two keys are equal, and a stable
         sort (timsort, quicker on the runs of a track's detections) gives the same order."""
         key = track[detections] * self.positions.size + self.sensor[detections]
-        return detections[np.argsort(key, kind="stable")]
+        return detections[key.argsort(kind="stable")]
 
     def typical_travel_time(self) -> float | None:
         """The median kinematic travel time between neighbouring sensors at their median speeds
@@ -113,7 +121,8 @@ class Sensors:
         if self.positions.size < 2:
             return None
         speeds = self.median_speed
-        return float(np.median(travel_time(np.diff(self.positions), speeds[:-1], speeds[1:])))
+        gaps = self.positions[1:] - self.positions[:-1]  # np.diff
+        return median(travel_time(gaps, speeds[:-1], speeds[1:]))
 
 
 def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
