@@ -1,14 +1,18 @@
 """polars' text of floats is Python's `repr` (or orjson's), and rows joined from columns and
 constant texts are the rows' text, as the result writers need them byte for byte."""
 
+import threading
+
 import numpy as np
 import orjson
 import polars as pl
+import pytest
 
 from roadlink.association.text_columns import (
     float_column,
     has_any,
     joined_rows,
+    made_in_order,
     text_column,
     where,
 )
@@ -62,3 +66,31 @@ def test_has_any_finds_a_pattern_in_any_text():
     assert not has_any(texts, r"\\")
     assert has_any(text_column(["tab\there"]), r"[^ -~]")
     assert not has_any(text_column(["printable ascii ~"]), r"[^ -~]")
+
+
+def test_batches_are_made_in_order_and_at_most_a_pool_ahead_of_the_writer() -> None:
+    workers = max(1, pl.thread_pool_size())
+    started: list[int] = []
+    lock = threading.Lock()
+
+    def make(batch: int) -> str:
+        with lock:
+            started.append(batch)
+        return f"<{batch}>"
+
+    written = []
+    for text in made_in_order(make, range(50)):
+        written.append(text)
+        # Batches beyond the one being written and the `workers` after it are not begun.
+        assert max(started) < len(written) + workers
+    assert written == [f"<{k}>" for k in range(50)]
+
+
+def test_a_batch_that_fails_fails_the_text() -> None:
+    def make(batch: int) -> str:
+        if batch == 3:
+            raise ValueError("batch 3")
+        return str(batch)
+
+    with pytest.raises(ValueError, match="batch 3"):
+        list(made_in_order(make, range(10)))

@@ -21,6 +21,7 @@ import math
 import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
@@ -31,6 +32,7 @@ from roadlink.association.text_columns import (
     float_column,
     has_any,
     joined_rows,
+    made_in_order,
     text_column,
     where,
 )
@@ -107,11 +109,15 @@ def _filled(text: str, holes: list[Any], rows: _RowTexts) -> Iterator[str]:
     characters): the holes do."""
     pieces = text.split(_HOLE_TEXT)
     unassigned = holes.pop()
-    start = 0
-    for end in _batches(holes):
-        yield rows.text(pieces[start:end], holes[start:end], 8)
-        start = end
-    yield rows.text([pieces[-2]], [unassigned], 4) + pieces[-1]
+    batches = [
+        (pieces[start:end], holes[start:end], 8) for start, end in pairwise([0, *_batches(holes)])
+    ]
+    batches.append(([pieces[-2]], [unassigned], 4))
+    if rows.polars:
+        yield from made_in_order(lambda batch: rows.text(*batch), batches)
+    else:
+        yield from (rows.text(*batch) for batch in batches)
+    yield pieces[-1]
 
 
 _HOLE_TEXT = "\x00"
@@ -165,11 +171,13 @@ class _RowTexts:
         self.spelling = "python" if layout.indented else "orjson"
         self.polars = len(d) >= _POLARS_ROWS
         self.ids, self.sensors = self._texts(d.detection_id), self._texts(d.sensor_id)
-        self.agree = _columns_agree(result) and not self._holds(_NOT_PRINTABLE_ASCII)
         # Ids are never None; the constant text around them quotes them, when none needs
-        # escaping (else they are JSON strings already).
+        # escaping (else they are JSON strings already). Plain ids, the common case, are told
+        # by one search for either kind of character.
+        plain = not self._holds(r'[^ -~]|["\\]')
+        self.agree = _columns_agree(result) and (plain or not self._holds(_NOT_PRINTABLE_ASCII))
         self.quote = '"'
-        if self.agree and self._holds(r'["\\]'):
+        if self.agree and not plain:
             self.quote = ""
             self.ids = self._texts(_json_strings(d.detection_id))
             self.sensors = self._texts(_json_strings(d.sensor_id))
