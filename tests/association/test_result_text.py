@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from roadlink.association import associate, result_text
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.association.detections import Detections
 from roadlink.association.result import build_result
 from roadlink.association.result_text import result_json_compact, result_json_text
@@ -48,6 +49,14 @@ def results():
         build_result(d, groups, "x", {"p": [1e-6, 2]}, link_confidence=small_links),
         build_result(d, groups, "x", {"q": "\u00e9"}, link_confidence=small_links),
     ]
+    # Read by the fast CSV reader: the ids are polars' column, given to the writers as it is.
+    read = read_detections_csv(write_detections_csv(simulate(faulty, seed=4).detections))
+    rows = zip(d.position.tolist(), d.velocity.tolist(), d.timestamp.tolist(), strict=True)
+    numbers = "position,velocity,timestamp\n" + "".join(f"{p!r},{v!r},{t!r}\n" for p, v, t in rows)
+    generated = read_detections_csv(numbers.encode())  # ids d1, d2, ... made by polars
+    assert read.parsed_detection_ids() is not None
+    assert generated.parsed_detection_ids() is not None
+    out += [associate(read, "assignment", {}), build_result(generated, groups, "x", {})]
     return out
 
 
@@ -117,7 +126,8 @@ ids = st.text(alphabet=st.characters(min_codepoint=32, max_codepoint=126), min_s
 def test_any_ids_groups_and_links_write_as_the_plain_writers_do(rows, seed, links):
     """Ids with quotes, backslashes, commas and formula starts; targets, unassigned detections
     and links at random: every writer gives the plain writers' bytes."""
-    unique = list(dict.fromkeys(i for i, _ in rows))
+    # Distinct as the reader keeps them: stripped (" 0" is "0"), a blank one generated.
+    unique = list(dict.fromkeys(i.strip() or "blank" for i, _ in rows))
     sensors = [s for _, s in rows][: len(unique)]
     n = len(unique)
     rng = np.random.default_rng(seed)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import KW_ONLY, InitVar, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -32,6 +32,10 @@ from roadlink.association.feature_columns import (
     lane_column,
     length_column,
 )
+from roadlink.association.parsed_texts import DeferredColumn
+
+if TYPE_CHECKING:
+    import polars as pl
 
 CLUTTER = "clutter"
 """The reserved target label of a false alarm: a detection of no target."""
@@ -55,6 +59,9 @@ __all__ = [
 ]
 
 
+_DETECTION_IDS = DeferredColumn()
+
+
 @dataclass(frozen=True, eq=False)
 class Detections:
     """Anonymous detections: one entry per sensor report, all arrays of equal length.
@@ -72,8 +79,12 @@ class Detections:
     velocity: FloatArray
     timestamp: FloatArray
     sensor_id: ObjectArray
-    detection_id: ObjectArray
-    target: ObjectArray
+    # An object array of str to every reader; the fast CSV reader may give it as the parser's
+    # column, made into the array on first read (`parsed_texts`).
+    detection_id: DeferredColumn = _DETECTION_IDS
+    # No default above: the descriptor says so (its class read raises AttributeError, as
+    # dataclasses documents for descriptor-typed fields), which mypy does not follow.
+    target: ObjectArray  # type: ignore[misc]
     lane: IntArray = field(default=None)  # type: ignore[arg-type]
     length: FloatArray = field(default=None)  # type: ignore[arg-type]
     vehicle_class: ObjectArray = field(default=None)  # type: ignore[arg-type]
@@ -147,6 +158,12 @@ class Detections:
 
     def __len__(self) -> int:
         return int(self.position.size)
+
+    def parsed_detection_ids(self) -> pl.Series | None:
+        """The detection ids as the CSV parser made them (a polars String column), when it
+        did: a writer that joins its text in polars takes them so, without a str per id."""
+        parsed = _DETECTION_IDS.parsed(self)
+        return None if parsed is None else parsed.series
 
     @property
     def labelled(self) -> npt.NDArray[np.bool_]:

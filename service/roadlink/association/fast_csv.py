@@ -31,6 +31,7 @@ from roadlink.association.feature_columns import (
     NO_LANE,
     CodedTexts,
 )
+from roadlink.association.parsed_texts import ParsedTexts, generated_ids
 
 if TYPE_CHECKING:
     import polars as pl
@@ -271,11 +272,12 @@ def _detection_ids_unique(frame: pl.DataFrame) -> bool:
     return column.n_unique() == frame.height
 
 
-def _detection_ids(frame: pl.DataFrame) -> Any:
-    """The detection ids; d1, d2, ... without the column."""
+def _detection_ids(frame: pl.DataFrame) -> ParsedTexts:
+    """The detection ids (d1, d2, ... without the column), as polars' column: `Detections`
+    makes them Python strs only when something reads them so (`parsed_texts`)."""
     if "detection_id" not in frame.columns:
-        return np.array([f"d{i + 1}" for i in range(frame.height)], dtype=object)
-    return frame["detection_id"].to_numpy().astype(object, copy=False)
+        return generated_ids(frame.height)
+    return ParsedTexts(frame["detection_id"])
 
 
 def _features(frame: pl.DataFrame, n: int) -> dict[str, Any] | None:

@@ -170,7 +170,7 @@ class _RowTexts:
         # orjson's compact floats are its own spelling; the indented text is Python's.
         self.spelling = "python" if layout.indented else "orjson"
         self.polars = len(d) >= _POLARS_ROWS
-        self.ids, self.sensors = self._texts(d.detection_id), self._texts(d.sensor_id)
+        self.ids, self.sensors = self._ids(), self._texts(d.sensor_id)
         # Ids are never None; the constant text around them quotes them, when none needs
         # escaping (else they are JSON strings already). Plain ids, the common case, are told
         # by one search for either kind of character.
@@ -187,6 +187,12 @@ class _RowTexts:
             if result.link_confidence is None
             else (result.groups >= 0) & ~np.isnan(result.link_confidence)
         )
+
+    def _ids(self) -> Any:
+        """The ids' texts: in polars, the CSV parser's own column when it made them."""
+        d = self.result.detections
+        parsed = d.parsed_detection_ids() if self.polars else None
+        return parsed if parsed is not None else self._texts(d.detection_id)
 
     def _texts(self, values: Any) -> Any:
         return text_column(values) if self.polars else values
