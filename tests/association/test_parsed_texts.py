@@ -9,7 +9,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from roadlink.association.csvio import read_csv_columns, read_detections_csv
+from roadlink.association.csvio import read_detections_csv, read_detections_csv_exactly
 from roadlink.association.detections import Detections, concatenate
 from roadlink.association.parsed_texts import ParsedTexts, generated_ids
 
@@ -19,16 +19,7 @@ CSV = b"position,velocity,timestamp,sensor_id,detection_id,target\n" + b"".join(
 
 
 def exact(data: bytes) -> Detections:
-    """The exact reader's detections (not the fast path's)."""
-    columns = read_csv_columns(data.decode())
-    return Detections.from_columns(
-        columns["position"] or [],
-        columns["velocity"] or [],
-        columns["timestamp"] or [],
-        sensor_id=columns["sensor_id"],
-        detection_id=columns["detection_id"],
-        target=columns["target"],
-    )
+    return read_detections_csv_exactly(data.decode())
 
 
 def test_the_fast_reader_keeps_the_parsed_ids_and_reads_as_the_exact_reader():

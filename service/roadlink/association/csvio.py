@@ -49,8 +49,14 @@ def read_detections_csv(text: str | bytes) -> Detections:
     fast = fast_detections(data)
     if fast is not None:
         return fast
-    if isinstance(text, bytes):
-        text = text.decode("utf-8-sig")
+    return read_detections_csv_exactly(
+        text.decode("utf-8-sig") if isinstance(text, bytes) else text
+    )
+
+
+def read_detections_csv_exactly(text: str) -> Detections:
+    """What `read_detections_csv` reads, by the exact reader alone (Python's `csv`), which
+    names every problem: the reader of any file the fast path does not take."""
     columns = read_csv_columns(text)
     return Detections.from_columns(
         columns["position"] or [],
