@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 from sklearn.metrics import adjusted_rand_score
 
+from roadlink.association import scores
 from roadlink.association.scores import adjusted_rand_index, score_grouping
 
 
@@ -107,3 +108,22 @@ def test_sparse_matching_agrees_with_dense_hungarian():
             pred.astype(np.int64), np.array([f"T{t}" for t in truth], dtype=object)
         )
         assert got.accuracy == pytest.approx(expected)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_codes_and_cells_are_numbered_as_sorting_numbered_them(seed):
+    """Labels coded by hashing and cells keyed by one integer give what `np.unique` of the
+    texts and of the (group, target) rows gave: the same numbers, in the same order."""
+    rng = np.random.default_rng(seed)
+    n = 5000
+    names = np.array([f"T{k}" for k in rng.integers(0, 800, n)] + ["clutter", "é", "Z"], object)
+    rng.shuffle(names)
+    texts = names.astype(str)
+    expected = np.where(texts == "clutter", -1, np.unique(texts, return_inverse=True)[1])
+    assert np.array_equal(scores._target_codes(names), expected)
+    pred = rng.integers(-1, 300, names.size)
+    truth = np.maximum(expected, 0)
+    pairs, counts = np.unique(np.column_stack([pred, truth]), axis=0, return_counts=True)
+    got = scores._pair_counts(pred, truth)
+    for column, want in zip(got, (pairs[:, 0], pairs[:, 1], counts), strict=True):
+        assert np.array_equal(column, want)
