@@ -4,10 +4,12 @@ from roadlink.association import DetectionError, associate
 from roadlink.association.csvio import (
     read_detections_csv,
     spreadsheet_safe,
+    spreadsheet_safe_column,
     spreadsheet_safe_texts,
     write_detections_csv,
 )
 from roadlink.association.detections import Detections
+from roadlink.association.text_columns import text_column
 from roadlink.simulation import preset, simulate
 
 
@@ -131,3 +133,10 @@ def test_spreadsheet_safe_texts_is_spreadsheet_safe_of_each():
     assert spreadsheet_safe_texts(plain) == plain
     mixed = ["d1", "=1+1", "-2", "'x", "\tt", "@a", "+"]
     assert spreadsheet_safe_texts(mixed) == [spreadsheet_safe(t) for t in mixed]
+
+
+def test_spreadsheet_safe_column_is_spreadsheet_safe_of_each():
+    texts = ["d1", "=1+1", "-2", "'x", "\tt", "\rr", "@a", "+", "", "a=b", "x'", " =", "\u00e9="]
+    assert spreadsheet_safe_column(text_column(texts)).to_list() == list(
+        map(spreadsheet_safe, texts)
+    )

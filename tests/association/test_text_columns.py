@@ -9,10 +9,13 @@ import polars as pl
 import pytest
 
 from roadlink.association.text_columns import (
+    concatenated,
     float_column,
     has_any,
+    joined,
     joined_rows,
     made_in_order,
+    prefixed,
     text_column,
     where,
 )
@@ -94,3 +97,22 @@ def test_a_batch_that_fails_fails_the_text() -> None:
 
     with pytest.raises(ValueError, match="batch 3"):
         list(made_in_order(make, range(10)))
+
+
+def test_prefixed_puts_the_prefix_before_texts_with_a_start():
+    texts = text_column(["=a", "ab", "b", "", "xa", "\ta"])
+    assert prefixed(texts, ("=", "a", "\t"), "'").to_list() == ["'=a", "'ab", "b", "", "xa", "'\ta"]
+    assert prefixed(texts, ("ab", "x"), "<").to_list() == ["=a", "<ab", "b", "", "<xa", "\ta"]
+
+
+def test_joined_is_the_texts_then_the_tail():
+    texts = text_column(["a", "", "bc"])
+    assert joined(texts, "\n") == "abc\n"
+    assert joined(texts) == "abc"
+    assert texts.to_list() == ["a", "", "bc"]  # left as it was
+
+
+def test_concatenated_puts_the_separator_between_parts():
+    numbers = float_column(np.array([0.5, 1e-7]))
+    parts = ["", text_column(["x", "y"]), numbers]
+    assert pl.select(concatenated(parts, ",")).to_series().to_list() == [",x,0.5", ",y,1e-07"]

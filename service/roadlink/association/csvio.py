@@ -13,11 +13,16 @@ from __future__ import annotations
 
 import csv
 import io
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from roadlink.association.detections import DetectionError, Detections, Problem
 from roadlink.association.fast_csv import fast_detections
+from roadlink.association.text_columns import prefixed
+
+if TYPE_CHECKING:
+    import polars as pl
 
 # What a spreadsheet takes for the start of a formula.
 FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
@@ -147,6 +152,11 @@ def spreadsheet_safe_texts(texts: list[str]) -> list[str]:
     if any("\n" + start in joined for start in _ESCAPED):
         return [spreadsheet_safe(text) for text in texts]
     return texts
+
+
+def spreadsheet_safe_column(texts: pl.Series) -> pl.Series:
+    """`spreadsheet_safe` of each of `texts`, a polars String column (no nulls), at once."""
+    return prefixed(texts, _ESCAPED, "'")
 
 
 def _unescaped(cell: str) -> str:

@@ -49,14 +49,40 @@ def has_any(texts: pl.Series, pattern: str) -> bool:
     return bool(texts.str.contains(pattern).any())
 
 
+def prefixed(texts: pl.Series, starts: tuple[str, ...], prefix: str) -> pl.Series:
+    """Each of `texts` (a polars String column, no nulls) with `prefix` before it where it
+    starts with one of `starts`."""
+    import polars as pl
+
+    column = pl.lit(texts)
+    starting = pl.any_horizontal([column.str.starts_with(start) for start in starts])
+    return pl.select(pl.when(starting).then(pl.lit(prefix) + column).otherwise(column)).to_series()
+
+
 def joined_rows(parts: list[Any], tail: str = "") -> str:
     """Each row's parts (columns of one length, as polars Series or lists of Python strs,
     expressions over them, or texts the same in every row) one after another, row after row,
     then `tail`, as one text."""
     import polars as pl
 
-    joined = pl.concat_str(_expressions(parts)).str.join("") + pl.lit(tail)
-    return str(pl.select(joined).item())
+    return joined(pl.select(concatenated(parts)).to_series(), tail)
+
+
+def joined(texts: pl.Series, tail: str = "") -> str:
+    """The texts of `texts` one after another, then `tail`, as one text. The tail is joined
+    as one more text: appended to the joined text, polars would copy it (twice the join's
+    time for a matrix of 60 MB)."""
+    import polars as pl
+
+    return str(pl.concat([texts, text_column([tail])]).str.join("").item())
+
+
+def concatenated(parts: list[Any], separator: str = "") -> pl.Expr:
+    """Each row's parts (as `joined_rows` takes them) one after another, `separator` between
+    them, as an expression."""
+    import polars as pl
+
+    return pl.concat_str(_expressions(parts), separator=separator)
 
 
 def where(mask: np.ndarray, then: list[Any], otherwise: str) -> pl.Expr:
@@ -64,9 +90,8 @@ def where(mask: np.ndarray, then: list[Any], otherwise: str) -> pl.Expr:
     after another; elsewhere the text `otherwise`."""
     import polars as pl
 
-    joined = pl.concat_str(_expressions(then))
     condition = pl.lit(pl.Series(mask, dtype=pl.Boolean))
-    return pl.when(condition).then(joined).otherwise(pl.lit(otherwise))
+    return pl.when(condition).then(concatenated(then)).otherwise(pl.lit(otherwise))
 
 
 def _expressions(parts: list[Any]) -> list[pl.Expr]:
