@@ -1,10 +1,9 @@
 """The fast writers of a result write exactly what the plain ones wrote: `json.dumps(document,
-indent=2)` for the CLI's --json, `orjson.dumps(document)` for the service's stored result, and
-the cell-by-cell matrix."""
+indent=2)` for the CLI's --json, `orjson.dumps(document)` for the service's stored result (the
+matrix: `test_matrix_text`)."""
 
 import dataclasses
 import json
-import re
 
 import numpy as np
 import orjson
@@ -79,13 +78,6 @@ def test_the_stored_json_of_text_orjson_writes_otherwise_is_orjson_of_the_rows()
     assert result_json_compact(result) == orjson.dumps(result.to_dict()).decode()
 
 
-@pytest.mark.parametrize("result", results())
-def test_the_matrix_placed_by_numpy_is_the_matrix_written_cell_by_cell(result, monkeypatch):
-    fast = result.to_matrix_csv()
-    monkeypatch.setattr(result_text, "_NEEDS_QUOTES", re.compile(r"|"))  # always cell by cell
-    assert fast == result.to_matrix_csv()
-
-
 def test_float_texts_are_repr():
     values = np.array([0.0, -0.0, 1e-5, 1.5e-7, 0.1, 1 / 3, 1e16, 123.0, np.inf, np.nan])
     assert result_text.float_texts(values) == [repr(v) for v in values.tolist()]
@@ -140,34 +132,6 @@ def test_any_ids_groups_and_links_write_as_the_plain_writers_do(rows, seed, link
     result = build_result(d, groups, "x", {}, link_confidence=confidence)
     assert result_json_text(result) == json.dumps(result.to_dict(), indent=2) + "\n"
     assert result_json_compact(result) == orjson.dumps(result.to_dict()).decode()
-    fast = result.to_matrix_csv()
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(result_text, "_NEEDS_QUOTES", re.compile(r"|"))
-        assert fast == result.to_matrix_csv()
-
-
-@pytest.mark.parametrize("shared_position", [False, True])
-def test_the_matrix_with_sensors_at_one_position_is_the_matrix_written_cell_by_cell(
-    shared_position, monkeypatch
-):
-    """Sensors at the same position: a target's detections by sensor (in road order, ties by
-    name) are then not in the order `target_members` gives them (by position, then time), and
-    the targets' confidences are the products in that order all the same."""
-    rng = np.random.default_rng(5)
-    names = ["E", "D", "C", "B", "A", "F"]
-    n = 20 * len(names)
-    k = np.arange(n) % len(names)
-    sensors = np.array(names, dtype=object)[k]
-    position = (np.array([0.0, 0, 0, 0, 0, 100]) if shared_position else 10.0 * np.arange(6))[k]
-    d = Detections.from_columns(
-        position, rng.uniform(10, 30, n), np.arange(n, dtype=float), list(sensors)
-    )
-    groups = np.where(np.arange(n) == 7, -1, np.arange(n) // len(names))
-    confidence = np.where(k == 0, np.nan, rng.random(n))
-    result = build_result(d, groups, "x", {}, link_confidence=confidence)
-    fast = result.to_matrix_csv()
-    monkeypatch.setattr(result_text, "_NEEDS_QUOTES", re.compile(r"|"))  # always cell by cell
-    assert fast == result.to_matrix_csv()
 
 
 def test_plain_results_are_written_from_the_columns_not_by_the_plain_encoders(monkeypatch):

@@ -11,13 +11,9 @@ from typing import Any
 import numpy as np
 
 from roadlink.association.backprojection import backproject_times
-from roadlink.association.csvio import (
-    FEATURE_COLUMNS,
-    feature_cells_of,
-    spreadsheet_safe_texts,
-)
+from roadlink.association.csvio import FEATURE_COLUMNS
 from roadlink.association.detections import Detections, FloatArray, IntArray, feature_arrays
-from roadlink.association.result_text import MatrixPlacement, float_texts, matrix_csv
+from roadlink.association.matrix_text import matrix_csv
 from roadlink.association.scores import Metrics, score_grouping
 
 
@@ -165,51 +161,7 @@ class AssociationResult:
         (`lane`, `length`, `vehicle_class`) adds one more column per sensor, empty where a
         detection does not report it; without features the matrix is as it always was.
         """
-        d = self.detections
-        sensors, sensor, ordered = _sensor_columns(d)
-        fields = ["detection_id", "velocity", "timestamp"]
-        fields += ["link_confidence"] if self.link_confidence is not None else []
-        fields += list(d.features)
-
-        def columns_of(index: IntArray | None) -> dict[str, list[str]]:
-            """Each field's cells of the detections `index` (all, in order, when None), each
-            column formatted at once (float_texts: `repr` of each, formatted by orjson)."""
-
-            def of(values: Any) -> Any:
-                return values if index is None else values[index]
-
-            columns = {
-                "detection_id": spreadsheet_safe_texts(of(d.detection_id).tolist()),
-                "velocity": float_texts(of(d.velocity)),
-                "timestamp": float_texts(of(d.timestamp)),
-            }
-            if self.link_confidence is not None:
-                link = of(self.link_confidence)
-                links = float_texts(link)
-                for i in np.flatnonzero(np.isnan(link)).tolist():
-                    links[i] = ""
-                columns["link_confidence"] = links
-            for name in d.features:
-                columns[name] = of(np.array(feature_cells_of(d, name), dtype=object)).tolist()
-            return columns
-
-        def write_rows(writer: Any) -> None:
-            """Cell by cell: a cell may list several detections (possible with K-means)."""
-            columns = columns_of(None)
-            sensor_of = sensor.tolist()
-            values = list(columns.values())
-            members = self.target_members()
-            confidences = self.target_confidences(members)
-            for k, (of_target, confidence) in enumerate(zip(members, confidences, strict=True)):
-                cells: list[list[list[str]]] = [[[] for _ in values] for _ in sensors]
-                for i in of_target.tolist():
-                    for cell, of_field in zip(cells[sensor_of[i]], values, strict=True):
-                        cell.append(of_field[i])
-                head = [f"T{k + 1}"] + ([] if confidence is None else [repr(confidence)])
-                writer.writerow(head + [";".join(v) for cell in cells for v in cell])
-
-        placement = MatrixPlacement(sensor, ordered, columns_of)
-        return matrix_csv(self, sensors, fields, placement, write_rows)
+        return matrix_csv(self)
 
 
 def result_from_dict(
@@ -325,27 +277,6 @@ def road_order(groups: IntArray, position: FloatArray, timestamp: FloatArray) ->
         runs = order[in_run]  # each run's rows together, in their order
         order[in_run] = runs[np.lexsort((timestamp[runs], keys[in_run]))]
     return order
-
-
-def _sensor_columns(d: Detections) -> tuple[list[str], IntArray, bool]:
-    """The distinct sensor ids by their (lowest) position, then by id; each detection's index
-    in that order; and whether each sensor has one position and no two sensors share one (then
-    detections ordered by sensor are in road order, as `target_members` orders them)."""
-    ids = d.sensor_id.tolist()
-    names = list(dict.fromkeys(ids))  # a few distinct ids: sorted as Python, not per row
-    code = {name: k for k, name in enumerate(names)}
-    codes = np.fromiter(map(code.__getitem__, ids), np.int64, len(ids))
-    lowest = np.full(len(names), np.inf)
-    lowest[codes] = d.position
-    one_each = bool(np.array_equal(lowest[codes], d.position))
-    if not one_each:
-        lowest = np.full(len(names), np.inf)
-        np.minimum.at(lowest, codes, d.position)
-    road = sorted(range(len(names)), key=lambda k: (lowest[k], str(names[k])))
-    column = np.empty(len(names), dtype=np.int64)
-    column[road] = np.arange(len(names))
-    distinct = bool(np.all(np.diff(lowest[road]) > 0))
-    return [names[k] for k in road], column[codes], one_each and distinct
 
 
 def _detection_rows(d: Detections, features: tuple[str, ...]) -> list[dict[str, Any]]:

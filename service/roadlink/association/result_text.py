@@ -1,20 +1,17 @@
 """A result as text, fast and byte for byte as the plain writers wrote it: the JSON that
-`json.dumps(document, indent=2)` writes (the CLI's `--json`), and the target x sensor matrix
-(`AssociationResult.to_matrix_csv`).
+`json.dumps(document, indent=2)` writes (the CLI's `--json`), and the service's stored JSON
+(the target x sensor matrix is `matrix_text`'s; it formats floats by `float_texts`).
 
 For a million detections Python's indenting JSON encoder takes tens of seconds; orjson writes
 the same document in well under one. The two agree on everything a result holds except a few
 forms: a float below 1e-4 in magnitude (orjson `1e-5`, `0.00001`; Python `1e-05`), which is
 rewritten here to Python's spelling; text that is not printable ASCII (Python escapes it as
 `\\u00e9`), and non-finite floats (Python `NaN`, orjson `null`), for which the plain encoder
-writes the document. The matrix formats each column once (orjson's floats, rewritten where
-they would differ from `repr`) and places each detection with numpy, instead of a `repr` and a
-list per cell.
+writes the document.
 """
 
 from __future__ import annotations
 
-import csv
 import io
 import json
 import math
@@ -27,7 +24,6 @@ from typing import TYPE_CHECKING, Any, BinaryIO
 import numpy as np
 import orjson
 
-from roadlink.association.csvio import spreadsheet_safe
 from roadlink.association.text_columns import (
     float_column,
     has_any,
@@ -390,91 +386,3 @@ def float_texts(
     for i in odd.tolist():
         texts[i] = prefix + repr(float(array[i])) + suffix
     return texts
-
-
-# The cells csv.writer (QUOTE_MINIMAL) would quote: then it writes the rows itself; and NUL,
-# which marks where a row starts below.
-_NEEDS_QUOTES = re.compile(r'[,"\r\n\x00]')
-_NUMBER_FIELDS = frozenset(("velocity", "timestamp", "link_confidence", "lane", "length"))
-
-
-@dataclass(frozen=True)
-class MatrixPlacement:
-    """Where a result's detections go in its matrix: each detection's sensor column (`sensor`,
-    the index of its sensor in road order); whether ordering a target's detections by that
-    column orders them as `target_members` does (`ordered`: each sensor at one position, no two
-    at the same); and each field's cells of given detections (`columns_of`: all, in order, for
-    None)."""
-
-    sensor: Any
-    ordered: bool
-    columns_of: Callable[[Any], dict[str, list[str]]]
-
-
-def matrix_csv(
-    result: AssociationResult,
-    sensors: list[str],
-    fields: list[str],
-    placement: MatrixPlacement,
-    write_rows: Callable[[Any], None],
-) -> str:
-    """The matrix of `result` (its `sensors` in road order; `fields` each detection's cells,
-    as `placement.columns_of` gives them), its rows placed by numpy when every (target, sensor)
-    cell holds at most one detection and no cell needs quoting; else `write_rows` writes them
-    (the general, per-cell writer).
-
-    In the first case the cells are formatted in the matrix's order (row by row, sensor by
-    sensor; a detection's cells once each) and the text is one join of them: a row's line
-    break and the next row's head are appended to its last cell."""
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(
-        ["target"]
-        + (["confidence"] if result.link_confidence is not None else [])
-        + [spreadsheet_safe(f"{sid}_{field}") for sid in sensors for field in fields]
-    )
-    header = out.getvalue()
-    assigned = np.flatnonzero(result.groups >= 0)
-    if not assigned.size:
-        return header
-    # Targets are numbered in `target_members` order: the k-th distinct group is row k.
-    row = np.unique(result.groups[assigned], return_inverse=True)[1].reshape(-1)
-    n_targets, n_sensors, n_fields = int(row.max()) + 1, len(sensors), len(fields)
-    cell = row * n_sensors + placement.sensor[assigned]
-    by_cell = np.argsort(cell)
-    cell = cell[by_cell]
-    if bool(np.any(cell[1:] == cell[:-1])):  # a cell of several detections
-        write_rows(writer)
-        return out.getvalue()
-    order = assigned[by_cell]  # the detections in the matrix's order
-    columns = placement.columns_of(order)
-    if any(
-        _NEEDS_QUOTES.search("".join(values))
-        for field, values in columns.items()
-        if field not in _NUMBER_FIELDS  # numbers hold none of those characters
-    ):
-        write_rows(writer)
-        return out.getvalue()
-    row_width = n_sensors * n_fields
-    if cell.size == n_targets * n_sensors:  # every target at every sensor
-        texts = np.empty(n_targets * row_width, dtype=object)
-        for f, values in enumerate(columns.values()):
-            texts[f::n_fields] = values
-    else:
-        texts = np.full(n_targets * row_width, "", dtype=object)
-        for f, values in enumerate(columns.values()):
-            texts[cell * n_fields + f] = values
-    heads = [f"T{k + 1}" for k in range(n_targets)]
-    if result.link_confidence is not None:
-        if placement.ordered:  # `order` is each target's members, target after target
-            sizes = np.bincount(row[by_cell], minlength=n_targets)
-            confidences = result.link_products(order, sizes)
-        else:
-            confidences = result.target_confidences(result.target_members())
-        texts_of = float_texts(np.array(confidences, dtype=float))
-        heads = [f"{h},{c}" for h, c in zip(heads, texts_of, strict=True)]
-    ends = np.arange(1, n_targets + 1) * row_width - 1
-    breaks = np.array([f"\n{h}" for h in heads[1:]] + ["\n"], dtype=object)
-    texts[ends] = texts[ends] + breaks
-    texts[0] = f"{header}{heads[0]},{texts[0]}"
-    return ",".join(texts.tolist())
