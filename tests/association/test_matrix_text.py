@@ -13,7 +13,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from roadlink.association import associate, matrix_text
-from roadlink.association.csvio import spreadsheet_safe
+from roadlink.association.csvio import (
+    read_detections_csv,
+    spreadsheet_safe,
+    write_detections_csv,
+)
 from roadlink.association.detections import Detections
 from roadlink.association.result import AssociationResult, build_result
 from roadlink.simulation import preset, simulate
@@ -116,11 +120,15 @@ def test_every_way_writes_the_same_matrix(name):
 def results() -> list[AssociationResult]:
     featured = preset("medium", lanes=3, vehicle_lengths=True, vehicle_classes=True)
     faulty = preset("small", miss_probability=0.1, false_alarm_rate=0.1, duplicate_probability=0.05)
+    # Read by the fast CSV reader: the ids are polars' column, taken as it is.
+    read = read_detections_csv(write_detections_csv(simulate(featured, seed=4).detections))
+    assert read.parsed_detection_ids() is not None
     return [
         associate(simulate(preset("large"), seed=2).detections, "assignment", {}),
         associate(simulate(faulty, seed=2).detections, "assignment", {}),
         associate(simulate(featured, seed=2).detections, "assignment", {}),
         associate(simulate(featured, seed=2).detections, "kmeans", {}),  # cells of several
+        associate(read, "assignment", {}),
     ]
 
 
@@ -226,3 +234,17 @@ def test_any_ids_groups_and_links_write_the_same_matrix_every_way(rows, seed, li
     groups = rng.integers(-1, 3, n)
     confidence = np.where(rng.random(n) < 0.3, np.nan, rng.random(n)) if links else None
     assert_written_alike(build_result(d, groups, "x", {}, link_confidence=confidence))
+
+
+def test_ids_read_by_the_fast_reader_are_made_spreadsheet_safe():
+    """A file's ids that start as formulas, unescaped (not a file roadlink wrote): the parser's
+    column of them, which the matrix takes as it is, is made spreadsheet safe all the same."""
+    original = grid(30, 20, 4, seen=0.9, ids=["=1+1", "+a", "-b", "@c", "f="])
+    d = original.detections
+    columns = (d.position, d.velocity, d.timestamp, d.sensor_id, d.detection_id)
+    rows = "".join(",".join(map(str, row)) + "\n" for row in zip(*map(list, columns), strict=True))
+    read = read_detections_csv(f"position,velocity,timestamp,sensor_id,detection_id\n{rows}")
+    assert read.parsed_detection_ids() is not None
+    result = build_result(read, original.groups, "x", {}, link_confidence=original.link_confidence)
+    matrix = assert_written_alike(result)
+    assert "'=1+1" in matrix and "'@c" in matrix and ",f=," in matrix

@@ -224,11 +224,13 @@ def _cell_lists(result: AssociationResult, index: IntArray | None) -> dict[str, 
 
 def _cell_columns(result: AssociationResult, order: IntArray) -> dict[str, Any]:
     """`_cell_lists(result, order)` as polars String columns (the link's confidences as an
-    expression). A column of Python strs (ids, features) is made in input order and then
-    gathered: made in the matrix's order, its strs would be read from all over memory (130 ms
-    against 20 for 10^6 ids, AMD EPYC)."""
+    expression). The ids are the CSV parser's column when it made them; a column of Python
+    strs (ids, features) is made in input order and then gathered: made in the matrix's order,
+    its strs would be read from all over memory (130 ms against 20 for 10^6 ids, AMD EPYC)."""
     d = result.detections
-    ids = spreadsheet_safe_column(text_column(d.detection_id).gather(order))
+    parsed = d.parsed_detection_ids()
+    ids = text_column(d.detection_id) if parsed is None else parsed
+    ids = spreadsheet_safe_column(ids.gather(order))
     columns: dict[str, Any] = {
         "detection_id": ids,
         "velocity": float_column(d.velocity[order]),
