@@ -9,6 +9,7 @@ import numpy as np
 import polars as pl
 import pytest
 
+from roadlink.association import associate
 from roadlink.association.csvio import read_detections_csv, read_detections_csv_exactly
 from roadlink.association.detections import Detections, concatenate
 from roadlink.association.parsed_texts import ParsedTexts, generated_ids
@@ -52,6 +53,13 @@ def test_parsed_ids_go_through_every_operation_on_detections():
     index = np.array([5, 0, 29, 3])
     assert fast.take(index).detection_id.tolist() == plain.take(index).detection_id.tolist()
     assert fast.without_labels().detection_id.tolist() == plain.detection_id.tolist()
+    # Copies that keep every row keep the parser's column: none of them makes the strs.
+    fresh = read_detections_csv(CSV)
+    for copy in (fresh.without_labels(), fresh.without_features(), fresh.only_features()):
+        assert copy.parsed_detection_ids() is fresh.parsed_detection_ids()
+    associate(fresh, "assignment", {})
+    made = [texts.made for texts in vars(fresh).values() if isinstance(texts, ParsedTexts)]
+    assert made == [False]  # `associate` made no str of an id
     joined = concatenate([fast, read_detections_csv(CSV)])
     assert joined.detection_id.tolist() == plain.detection_id.tolist() * 2
     renamed = dataclasses.replace(fast, detection_id=np.array(["x"] * 30, dtype=object))

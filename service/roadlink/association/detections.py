@@ -229,14 +229,22 @@ class Detections:
 
     def without_labels(self) -> Detections:
         """The same detections with every label removed (what an unsupervised associator sees)."""
-        columns = {name: getattr(self, name) for name in COLUMNS}
+        columns = self._stored(COLUMNS)
         columns["target"] = np.full(len(self), None, dtype=object)
         return Detections(**columns)
 
     def without_features(self) -> Detections:
         """The same detections as the paper's detector would report them: no lane, length or
         class (to measure what the features are worth)."""
-        return Detections(*(getattr(self, name) for name in COLUMNS[:6]))
+        return Detections(**self._stored(COLUMNS[:6]))
+
+    def _stored(self, names: Sequence[str]) -> dict[str, Any]:
+        """The columns `names` as held: the ids as the parser gave them, when it did (a copy
+        of the detections need not make their strs)."""
+        return {
+            name: _DETECTION_IDS.stored(self) if name == "detection_id" else getattr(self, name)
+            for name in names
+        }
 
     def only_features(self, *names: str) -> Detections:
         """The same detections reporting only the named features (`lane`, `length`,
@@ -245,8 +253,7 @@ class Detections:
         unknown = set(names) - set(COLUMNS[6:])
         if unknown:
             raise ValueError(f"not a detector feature: {', '.join(sorted(unknown))}")
-        kept = {name: getattr(self, name) for name in (*COLUMNS[:6], *names)}
-        return Detections(**kept)
+        return Detections(**self._stored((*COLUMNS[:6], *names)))
 
 
 def fill_unreported_features(columns: object, n: int) -> None:

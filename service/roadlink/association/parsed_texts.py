@@ -30,6 +30,11 @@ class ParsedTexts:
     def __len__(self) -> int:
         return self.series.len()
 
+    @property
+    def made(self) -> bool:
+        """Whether the object array has been made."""
+        return self._objects is not None
+
     def objects(self) -> ObjectArray:
         """The texts as an object array of `str`, made once (two threads asking at once make
         it once as well: the writers may read a result's columns from a pool)."""
@@ -72,6 +77,11 @@ class DeferredColumn:
 
     def __set__(self, instance: object, value: ObjectArray | ParsedTexts) -> None:
         instance.__dict__[self.slot] = value
+
+    def stored(self, instance: object) -> ObjectArray | ParsedTexts:
+        """The column as it is held: a copy of the detections built from it stays deferred."""
+        value: ObjectArray | ParsedTexts = instance.__dict__[self.slot]
+        return value
 
     def parsed(self, instance: object) -> ParsedTexts | None:
         """The column as the parser gave it, when it did."""
