@@ -119,6 +119,31 @@ def test_bad_input_is_a_clear_error(tmp_path):
     assert "row 2, field 'velocity': must be > 0" in result.stderr
     missing = runner.invoke(app, ["associate", str(tmp_path / "absent.csv")])
     assert missing.exit_code == 2 and "cannot read" in missing.stderr
+    directory = runner.invoke(app, ["associate", str(tmp_path)])
+    assert directory.exit_code == 2 and "cannot read" in directory.stderr
+    latin = tmp_path / "latin.csv"
+    latin.write_bytes(b"position,velocity,timestamp,target\n0,20,1,caf\xe9\n")
+    result = runner.invoke(app, ["associate", str(latin)])
+    assert result.exit_code == 2
+    assert "latin.csv: not UTF-8 text: byte 46 (invalid continuation byte)" in result.stderr
+
+
+@pytest.mark.parametrize("bom", [b"", b"\xef\xbb\xbf"])
+@pytest.mark.parametrize("line_end", [b"\n", b"\r\n"])
+def test_a_file_reads_as_its_bytes_do(tmp_path, bom, line_end):
+    """A file is mapped and read by polars itself; with a byte-order mark or CRLF line ends,
+    as its bytes: the same detections either way."""
+    d = simulate(preset("small"), seed=1).detections
+    data = (
+        bom
+        + write_detections_csv(d).replace("\n", "\r\n" if line_end == b"\r\n" else "\n").encode()
+    )
+    path = tmp_path / "d.csv"
+    path.write_bytes(data)
+    from_file, from_bytes = read_detections_csv(path), read_detections_csv(data)
+    for name in ("position", "velocity", "timestamp", "sensor_id", "detection_id", "target"):
+        assert getattr(from_file, name).tolist() == getattr(from_bytes, name).tolist()
+    assert from_file.detection_id.tolist() == d.detection_id.tolist()
 
 
 def test_unlabelled_simulation_has_no_metrics(tmp_path):

@@ -17,7 +17,10 @@ values, out-of-range ones and every other check that fails go to the exact reade
 from __future__ import annotations
 
 import csv
+import mmap
 from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -40,7 +43,10 @@ NUMBER_COLUMNS = ("position", "velocity", "timestamp")
 TEXT_COLUMNS = ("sensor_id", "detection_id", "target")
 FEATURE_COLUMNS = ("lane", "length", "vehicle_class")
 _KNOWN = frozenset((*NUMBER_COLUMNS, *TEXT_COLUMNS, *FEATURE_COLUMNS))
-_UTF8_BOM = b"\xef\xbb\xbf"
+
+Buffer = bytes | mmap.mmap
+"""A file's bytes, read or mapped: what `find`, slices and `np.frombuffer` take alike."""
+UTF8_BOM = b"\xef\xbb\xbf"
 
 
 def fast_detections(data: bytes, max_rows: int | None = None) -> Detections | None:
@@ -49,13 +55,36 @@ def fast_detections(data: bytes, max_rows: int | None = None) -> Detections | No
     With `max_rows`, a plain file of more rows returns None too (the exact reader names the
     limit), before polars reads any of it.
     """
-    data = data.removeprefix(_UTF8_BOM)
+    data = data.removeprefix(UTF8_BOM)
+    layout = plain_layout(data, max_rows)
+    return None if layout is None else plain_detections(data, layout)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """What `plain_layout` found of a plain file: its header's names and its lines."""
+
+    names: list[str]
+    lines: int
+
+
+def plain_layout(data: Buffer, max_rows: int | None = None) -> Layout | None:
+    """The header and line count of a plain file (`data` without a byte-order mark: its
+    bytes, or a map of them), or None when it is not plain or has more than `max_rows` rows:
+    checked on its bytes, before polars reads it."""
     names = _plain_header(data)
     if names is None:
         return None
     lines = _plain_lines(data, len(names))
     if lines is None or lines < 2 or (max_rows is not None and lines - 1 > max_rows):
         return None
+    return Layout(names, lines)
+
+
+def plain_detections(source: bytes | Path, layout: Layout) -> Detections | None:
+    """The detections of a plain file (its bytes, or its path: polars maps the file itself)
+    whose `layout` was found, or None where a value is one the exact reader must name."""
+    names, lines = layout.names, layout.lines
     # Imported here, on the first CSV: every process imports the core, few read CSV.
     import polars as pl
 
@@ -64,7 +93,13 @@ def fast_detections(data: bytes, max_rows: int | None = None) -> Detections | No
     try:
         # Strict about width: a line with more fields than the header is an error here, so
         # with `_plain_lines`' comma count every line has exactly the header's fields.
-        frame = pl.read_csv(data, has_header=False, skip_rows=1, schema=schema, quote_char=None)
+        frame = pl.read_csv(
+            source,
+            has_header=False,
+            skip_rows=1,
+            schema=schema,
+            quote_char=None,
+        )
     except (pl.exceptions.PolarsError, ValueError):
         return None
     n = frame.height
@@ -90,7 +125,7 @@ def fast_detections(data: bytes, max_rows: int | None = None) -> Detections | No
     )
 
 
-def _plain_header(data: bytes) -> list[str] | None:
+def _plain_header(data: Buffer) -> list[str] | None:
     """The header's column names, when they are ones the exact reader accepts as they are."""
     end = data.find(b"\n")
     if end < 0:
@@ -106,15 +141,15 @@ def _plain_header(data: bytes) -> list[str] | None:
     return header
 
 
-def _plain_lines(data: bytes, width: int) -> int | None:
+def _plain_lines(data: Buffer, width: int) -> int | None:
     """The number of lines (the header's included), when no byte is one whose reading the exact
     reader and polars might differ on, and the file holds as many commas as lines as wide as
     the header: checked over the whole file at C speed. polars then refuses a line wider than
     the header, so that no line is narrower either (none blank: a blank line has no comma)."""
     newlines, commas, low = _count_bytes(data)
-    if low != newlines and not _plain_beside_newlines(data, newlines, low):
+    if low != newlines and not _plain_beside_newlines(bytes(data), newlines, low):
         return None
-    lines = newlines + (0 if data.endswith(b"\n") else 1)
+    lines = newlines + (0 if data[-1:] == b"\n" else 1)
     return lines if commas == (width - 1) * lines else None
 
 
@@ -136,7 +171,7 @@ def _plain_beside_newlines(data: bytes, newlines: int, low: int) -> bool:
 _NOT_PLAIN = (b'"', b"'")
 
 
-def _count_bytes(data: bytes) -> tuple[int, int, int]:
+def _count_bytes(data: Buffer) -> tuple[int, int, int]:
     """The newlines, the commas, and the bytes up to the quote `'` (controls, newlines, the
     space, `!"#$%&'` included) or beyond ASCII of `data`: in a plain file of LF line ends the
     last are its newlines, so that one comparison rules out quotes, blanks and bytes beyond
@@ -162,18 +197,18 @@ def _count_bytes(data: bytes) -> tuple[int, int, int]:
 _POLARS_MAX_BYTES = 1 << 32
 
 
-def _count(data: bytes, char: str) -> int:
+def _count(data: Buffer, char: str) -> int:
     """The bytes of `data` equal to `char`, by chunks (see `_count_up_to`)."""
     return _chunked_count(data, lambda chunk: chunk == ord(char))
 
 
-def _count_up_to(data: bytes, highest: int) -> int:
+def _count_up_to(data: Buffer, highest: int) -> int:
     """The bytes of `data` up to `highest` or beyond ASCII (read as signed bytes), by chunks,
     so that the comparison's memory stays small."""
     return _chunked_count(data, lambda chunk: chunk <= highest)
 
 
-def _chunked_count(data: bytes, test: Callable[[Any], Any]) -> int:
+def _chunked_count(data: Buffer, test: Callable[[Any], Any]) -> int:
     buffer = np.frombuffer(data, dtype=np.int8)
     return sum(
         int(np.count_nonzero(test(buffer[start : start + _CHUNK_BYTES])))

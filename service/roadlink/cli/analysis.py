@@ -68,13 +68,16 @@ def parse_param_options(values: list[str]) -> dict[str, str]:
 def associate_file(file: Path, associator: str, param: list[str]) -> AssociationResult:
     """Read a detection CSV ('-' = stdin) and associate it; exit 2 with the reason on bad input."""
     try:
-        # Bytes: the fast path (polars) reads them as they are, without a decoded copy.
-        data = sys.stdin.buffer.read() if str(file) == "-" else file.read_bytes()
+        # Bytes from stdin: the fast path (polars) reads them as they are, without a decoded
+        # copy; a file is mapped, and polars reads it itself.
+        detections = read_detections_csv(sys.stdin.buffer.read() if str(file) == "-" else file)
     except OSError as exc:
         raise fail(f"cannot read {file}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise fail(f"{file}: not UTF-8 text: byte {exc.start + 1} ({exc.reason})") from None
+    except DetectionError as exc:
+        raise fail(f"{file}: {exc}") from None
     try:
-        detections = read_detections_csv(data)
-        del data  # not needed while it associates (a million rows: 60 MB)
         return associate(detections, associator, parse_param_options(param))
     except (DetectionError, AssociationError) as exc:
         raise fail(f"{file}: {exc}") from None
