@@ -114,7 +114,7 @@ def measure_read_memory(path: Path) -> dict[str, float]:
     for name in ("position", "velocity", "timestamp", "lane", "length"):
         produced += getattr(detections, name).nbytes
     texts = ["sensor_id", "target", "vehicle_class"]
-    parsed_ids = detections.parsed_detection_ids()
+    parsed_ids = detections.parsed_texts("detection_id")
     if parsed_ids is None:
         texts.append("detection_id")
     else:  # held as polars' column (`ParsedTexts`): counted so, not as the strs it would make

@@ -122,7 +122,7 @@ def results() -> list[AssociationResult]:
     faulty = preset("small", miss_probability=0.1, false_alarm_rate=0.1, duplicate_probability=0.05)
     # Read by the fast CSV reader: the ids are polars' column, taken as it is.
     read = read_detections_csv(write_detections_csv(simulate(featured, seed=4).detections))
-    assert read.parsed_detection_ids() is not None
+    assert read.parsed_texts("detection_id") is not None
     return [
         associate(simulate(preset("large"), seed=2).detections, "assignment", {}),
         associate(simulate(faulty, seed=2).detections, "assignment", {}),
@@ -244,7 +244,7 @@ def test_ids_read_by_the_fast_reader_are_made_spreadsheet_safe():
     columns = (d.position, d.velocity, d.timestamp, d.sensor_id, d.detection_id)
     rows = "".join(",".join(map(str, row)) + "\n" for row in zip(*map(list, columns), strict=True))
     read = read_detections_csv(f"position,velocity,timestamp,sensor_id,detection_id\n{rows}")
-    assert read.parsed_detection_ids() is not None
+    assert read.parsed_texts("detection_id") is not None
     result = build_result(read, original.groups, "x", {}, link_confidence=original.link_confidence)
     matrix = assert_written_alike(result)
     assert "'=1+1" in matrix and "'@c" in matrix and ",f=," in matrix

@@ -25,13 +25,13 @@ def exact(data: bytes) -> Detections:
 
 def test_the_fast_reader_keeps_the_parsed_ids_and_reads_as_the_exact_reader():
     fast = read_detections_csv(CSV)
-    parsed = fast.parsed_detection_ids()
+    parsed = fast.parsed_texts("detection_id")
     assert isinstance(parsed, pl.Series) and parsed.to_list() == [f"id-{i}" for i in range(30)]
     ids = fast.detection_id
     assert ids.dtype == object and ids.tolist() == exact(CSV).detection_id.tolist()
     assert all(type(i) is str for i in ids)
     assert fast.detection_id is ids  # made once
-    assert fast.parsed_detection_ids() is parsed  # still there for a writer
+    assert fast.parsed_texts("detection_id") is parsed  # still there for a writer
 
 
 def test_ids_made_for_a_file_without_them_are_the_exact_readers():
@@ -39,7 +39,7 @@ def test_ids_made_for_a_file_without_them_are_the_exact_readers():
         b"%d,%d,%d\n" % (100 * (i % 2), 20 + i, i) for i in range(12)
     )
     fast = read_detections_csv(data)
-    assert fast.parsed_detection_ids() is not None
+    assert fast.parsed_texts("detection_id") is not None
     assert (
         fast.detection_id.tolist()
         == exact(data).detection_id.tolist()
@@ -56,14 +56,16 @@ def test_parsed_ids_go_through_every_operation_on_detections():
     # Copies that keep every row keep the parser's column: none of them makes the strs.
     fresh = read_detections_csv(CSV)
     for copy in (fresh.without_labels(), fresh.without_features(), fresh.only_features()):
-        assert copy.parsed_detection_ids() is fresh.parsed_detection_ids()
-    associate(fresh, "assignment", {})
+        assert copy.parsed_texts("detection_id") is fresh.parsed_texts("detection_id")
+    result = associate(fresh, "assignment", {})
     made = [texts.made for texts in vars(fresh).values() if isinstance(texts, ParsedTexts)]
-    assert made == [False]  # `associate` made no str of an id
+    assert made == [False, False]  # `associate` made no str of an id nor of a label
+    assert result.metrics == associate(plain, "assignment", {}).metrics
+    assert fresh.target.tolist() == plain.target.tolist()
     joined = concatenate([fast, read_detections_csv(CSV)])
     assert joined.detection_id.tolist() == plain.detection_id.tolist() * 2
     renamed = dataclasses.replace(fast, detection_id=np.array(["x"] * 30, dtype=object))
-    assert renamed.parsed_detection_ids() is None and renamed.detection_id[0] == "x"
+    assert renamed.parsed_texts("detection_id") is None and renamed.detection_id[0] == "x"
     assert "id-0" in repr(fast)
 
 
@@ -75,7 +77,7 @@ def test_detections_with_parsed_ids_pickle(read_first):
         _ = fast.detection_id
     back = pickle.loads(pickle.dumps(fast))
     assert back.detection_id.tolist() == exact(CSV).detection_id.tolist()
-    parsed = back.parsed_detection_ids()
+    parsed = back.parsed_texts("detection_id")
     assert parsed is not None and parsed.to_list() == back.detection_id.tolist()
 
 

@@ -53,8 +53,8 @@ def results():
     rows = zip(d.position.tolist(), d.velocity.tolist(), d.timestamp.tolist(), strict=True)
     numbers = "position,velocity,timestamp\n" + "".join(f"{p!r},{v!r},{t!r}\n" for p, v, t in rows)
     generated = read_detections_csv(numbers.encode())  # ids d1, d2, ... made by polars
-    assert read.parsed_detection_ids() is not None
-    assert generated.parsed_detection_ids() is not None
+    assert read.parsed_texts("detection_id") is not None
+    assert generated.parsed_texts("detection_id") is not None
     out += [associate(read, "assignment", {}), build_result(generated, groups, "x", {})]
     return out
 

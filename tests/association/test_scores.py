@@ -127,3 +127,23 @@ def test_codes_and_cells_are_numbered_as_sorting_numbered_them(seed):
     got = scores._pair_counts(pred, truth)
     for column, want in zip(got, (pairs[:, 0], pairs[:, 1], counts), strict=True):
         assert np.array_equal(column, want)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_parsers_label_column_scores_as_the_object_array(seed):
+    """From the CSV parser's column (polars, null where unlabelled) the scores are the same
+    floats as from the object array."""
+    import polars as pl
+
+    rng = np.random.default_rng(seed)
+    n = 3000
+    names = [f"T{k}" for k in rng.integers(0, 300, n)]
+    names = [
+        None if r < 0.1 else ("clutter" if r < 0.15 else t)
+        for r, t in zip(rng.random(n), names, strict=True)
+    ]
+    names[:3] = ["é", "Z", "a"]
+    pred = rng.integers(-1, 320, n)
+    objects = np.array(names, dtype=object)
+    assert score_grouping(pred, pl.Series(names, dtype=pl.String)) == score_grouping(pred, objects)
+    assert score_grouping(pred, pl.Series([None] * n, dtype=pl.String)) is None

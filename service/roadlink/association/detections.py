@@ -60,6 +60,8 @@ __all__ = [
 
 
 _DETECTION_IDS = DeferredColumn()
+_TARGETS = DeferredColumn()
+_DEFERRED = {"detection_id": _DETECTION_IDS, "target": _TARGETS}
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,12 +81,12 @@ class Detections:
     velocity: FloatArray
     timestamp: FloatArray
     sensor_id: ObjectArray
-    # An object array of str to every reader; the fast CSV reader may give it as the parser's
-    # column, made into the array on first read (`parsed_texts`).
+    # Object arrays to every reader; the fast CSV reader may give them as the parser's
+    # columns, made into the arrays on first read (`parsed_texts`).
+    # Neither has a default: the descriptor says so (its class read raises AttributeError, as
+    # dataclasses documents for descriptor-typed fields).
     detection_id: DeferredColumn = _DETECTION_IDS
-    # No default above: the descriptor says so (its class read raises AttributeError, as
-    # dataclasses documents for descriptor-typed fields), which mypy does not follow.
-    target: ObjectArray  # type: ignore[misc]
+    target: DeferredColumn = _TARGETS
     lane: IntArray = field(default=None)  # type: ignore[arg-type]
     length: FloatArray = field(default=None)  # type: ignore[arg-type]
     vehicle_class: ObjectArray = field(default=None)  # type: ignore[arg-type]
@@ -159,10 +161,11 @@ class Detections:
     def __len__(self) -> int:
         return int(self.position.size)
 
-    def parsed_detection_ids(self) -> pl.Series | None:
-        """The detection ids as the CSV parser made them (a polars String column), when it
-        did: a writer that joins its text in polars takes them so, without a str per id."""
-        parsed = _DETECTION_IDS.parsed(self)
+    def parsed_texts(self, name: str) -> pl.Series | None:
+        """The column `name` (`detection_id` or `target`) as the CSV parser made it (a polars
+        String column, null where a label is empty), when it did: a writer that joins its
+        text in polars, or the scoring, takes it so, without a str per row."""
+        parsed = _DEFERRED[name].parsed(self)
         return None if parsed is None else parsed.series
 
     @property
@@ -239,10 +242,10 @@ class Detections:
         return Detections(**self._stored(COLUMNS[:6]))
 
     def _stored(self, names: Sequence[str]) -> dict[str, Any]:
-        """The columns `names` as held: the ids as the parser gave them, when it did (a copy
-        of the detections need not make their strs)."""
+        """The columns `names` as held: the ids and labels as the parser gave them, when it did
+        (a copy of the detections need not make their strs)."""
         return {
-            name: _DETECTION_IDS.stored(self) if name == "detection_id" else getattr(self, name)
+            name: _DEFERRED[name].stored(self) if name in _DEFERRED else getattr(self, name)
             for name in names
         }
 

@@ -120,7 +120,7 @@ def plain_detections(source: bytes | Path, layout: Layout) -> Detections | None:
         np.ascontiguousarray(timestamp, dtype=np.float64),
         sensors,
         _detection_ids(frame),
-        shared_texts(frame["target"]) if "target" in names else np.full(n, None, object),
+        _labels(frame) if "target" in names else np.full(n, None, object),
         **features,
     )
 
@@ -305,6 +305,12 @@ def _detection_ids_unique(frame: pl.DataFrame) -> bool:
     if not bool(np.any(hashes[1:] == hashes[:-1])):
         return True
     return column.n_unique() == frame.height
+
+
+def _labels(frame: pl.DataFrame) -> ParsedTexts:
+    """The labels as polars' column (null where empty): made the object array `shared_texts`
+    makes only when something reads them so (the scoring reads polars' column)."""
+    return ParsedTexts(frame["target"], make=shared_texts)
 
 
 def _detection_ids(frame: pl.DataFrame) -> ParsedTexts:

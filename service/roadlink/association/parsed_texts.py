@@ -2,15 +2,17 @@
 
 A million detection ids are a million `str` objects: making them is a fifth of a 10^6-row
 CSV read, and a result writer that joins its rows in polars (`text_columns`) then turns them
-back into a polars column. The fast reader (`fast_csv`) therefore hands `Detections` its ids as
-the parser's column (`ParsedTexts`); `Detections.detection_id` is the object array all the
-same, made on first read (`DeferredColumn`), and a writer that can take the parser's column
-asks for it (`Detections.parsed_texts`) and never makes the strs.
+back into a polars column. The fast reader (`fast_csv`) therefore hands `Detections` its ids
+and labels as the parser's columns (`ParsedTexts`); `Detections.detection_id` and `.target` are
+the object arrays all the same, made on first read (`DeferredColumn`), and a writer or the
+scoring that can take the parser's column asks for it (`Detections.parsed_texts`) and never
+makes the strs.
 """
 
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, overload
 
 from roadlink.association.columns import ObjectArray
@@ -20,10 +22,14 @@ if TYPE_CHECKING:
 
 
 class ParsedTexts:
-    """A polars String column without nulls, and its object array once asked for."""
+    """A polars String column (null where a cell is empty), and its object array (None there)
+    once asked for, made by `make` (one str per row by default)."""
 
-    def __init__(self, series: pl.Series) -> None:
+    def __init__(
+        self, series: pl.Series, make: Callable[[pl.Series], ObjectArray] | None = None
+    ) -> None:
         self.series = series
+        self._make = make
         self._objects: ObjectArray | None = None
         self._lock = threading.Lock()
 
@@ -40,14 +46,19 @@ class ParsedTexts:
         it once as well: the writers may read a result's columns from a pool)."""
         with self._lock:
             if self._objects is None:
-                self._objects = self.series.to_numpy().astype(object, copy=False)
+                if self._make is not None:
+                    self._objects = self._make(self.series)
+                else:
+                    self._objects = self.series.to_numpy().astype(object, copy=False)
             return self._objects
 
     def __getstate__(self) -> dict[str, Any]:
-        return {"series": self.series, "objects": self._objects}
+        # `make` pickles by name: a module's function, never a lambda.
+        return {"series": self.series, "make": self._make, "objects": self._objects}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.series = state["series"]
+        self._make = state["make"]
         self._objects = state["objects"]
         self._lock = threading.Lock()
 

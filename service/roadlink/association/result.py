@@ -213,7 +213,7 @@ def result_from_dict(
         params=dict(document["params"]),
         detections=detections,
         groups=group_array,
-        metrics=score_grouping(group_array, detections.target),
+        metrics=score_grouping(group_array, _labels(detections)),
         effective_params=None if effective is None else dict(effective),
         link_confidence=link_confidence,
     )
@@ -255,7 +255,7 @@ def build_result(
         params=params,
         detections=detections,
         groups=renumbered,
-        metrics=score_grouping(renumbered, detections.target),
+        metrics=score_grouping(renumbered, _labels(detections)),
         effective_params=effective_params,
         link_confidence=link_confidence,
     )
@@ -307,3 +307,9 @@ def _measurement_rows(d: Detections) -> list[dict[str, Any]]:
             strict=True,
         )
     ]
+
+
+def _labels(detections: Detections) -> Any:
+    """The labels as the scoring takes them best: the CSV parser's column, when it made one."""
+    parsed = detections.parsed_texts("target")
+    return detections.target if parsed is None else parsed

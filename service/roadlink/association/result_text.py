@@ -187,7 +187,7 @@ class _RowTexts:
     def _ids(self) -> Any:
         """The ids' texts: in polars, the CSV parser's own column when it made them."""
         d = self.result.detections
-        parsed = d.parsed_detection_ids() if self.polars else None
+        parsed = d.parsed_texts("detection_id") if self.polars else None
         return parsed if parsed is not None else self._texts(d.detection_id)
 
     def _texts(self, values: Any) -> Any:

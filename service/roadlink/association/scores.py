@@ -7,11 +7,15 @@ when unknown and ``"clutter"`` for a false alarm. Only labelled detections are s
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
 from roadlink.association.detections import CLUTTER, IntArray, ObjectArray
+
+if TYPE_CHECKING:
+    import polars as pl
 
 
 @dataclass(frozen=True)
@@ -29,8 +33,9 @@ class Metrics:
         return asdict(self)
 
 
-def score_grouping(groups: IntArray, labels: ObjectArray) -> Metrics | None:
-    """Score `groups` against `labels` over the labelled detections; None when none is labelled.
+def score_grouping(groups: IntArray, labels: ObjectArray | pl.Series) -> Metrics | None:
+    """Score `groups` against `labels` (an object array, or the CSV parser's column of them:
+    `Detections.parsed_texts`) over the labelled detections; None when none is labelled.
 
     - accuracy (the paper's figure): groups are matched one-to-one to true targets so as to
       maximise agreeing detections (Hungarian method on the contingency table); the share of
@@ -42,11 +47,10 @@ def score_grouping(groups: IntArray, labels: ObjectArray) -> Metrics | None:
     - complete_targets: share of true targets whose detections form exactly one group, no more
       and no less (the row of the target x sensor matrix is exactly right).
     """
-    labelled = np.array([t is not None for t in labels], dtype=bool)
+    labelled, truth = _labelled_codes(labels)
     if not labelled.any():
         return None
     pred = np.asarray(groups, dtype=np.int64)[labelled]
-    truth = _target_codes(labels[labelled])
 
     accuracy = _matched_accuracy(pred, truth)
     precision, recall = _pairwise_precision_recall(pred, truth)
@@ -67,6 +71,22 @@ def _matched_accuracy(pred: IntArray, truth: IntArray) -> float:
     if both.any():
         right += _max_matching_weight(*_pair_counts(pred[both], truth[both]))
     return right / pred.size
+
+
+def _labelled_codes(labels: ObjectArray | pl.Series) -> tuple[npt.NDArray[np.bool_], IntArray]:
+    """Which detections are labelled, and the code of each labelled one's target (-1 for
+    clutter): its rank among the distinct labels, in code-point order. From the CSV parser's
+    column (`Detections.parsed_texts`), polars codes the labels without a str per row."""
+    if isinstance(labels, np.ndarray):
+        labelled = np.array([t is not None for t in labels], dtype=bool)
+        return labelled, _target_codes(labels[labelled])
+    import polars as pl
+
+    texts = labels.drop_nulls()
+    distinct = texts.unique().sort()  # UTF-8's byte order is the code points' order
+    codes = texts.cast(pl.Enum(distinct)).to_physical().to_numpy().astype(np.int64)
+    codes[(texts == CLUTTER).to_numpy()] = -1
+    return labels.is_not_null().to_numpy(), codes
 
 
 def _target_codes(labels: ObjectArray) -> IntArray:
