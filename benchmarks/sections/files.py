@@ -113,12 +113,13 @@ def measure_read_memory(path: Path) -> dict[str, float]:
     produced = 0
     for name in ("position", "velocity", "timestamp", "lane", "length"):
         produced += getattr(detections, name).nbytes
-    texts = ["sensor_id", "target", "vehicle_class"]
-    parsed_ids = detections.parsed_texts("detection_id")
-    if parsed_ids is None:
-        texts.append("detection_id")
-    else:  # held as polars' column (`ParsedTexts`): counted so, not as the strs it would make
-        produced += int(parsed_ids.estimated_size())
+    texts = ["sensor_id", "vehicle_class"]
+    for name in ("detection_id", "target"):
+        parsed = detections.parsed_texts(name)
+        if parsed is None:
+            texts.append(name)
+        else:  # held as polars' column (`ParsedTexts`): counted so, not as the strs it makes
+            produced += int(parsed.estimated_size())
     for name in texts:
         column = getattr(detections, name)
         produced += column.nbytes
@@ -267,11 +268,11 @@ def _read_table(path: Path, plan: FilesPlan) -> Table:
             "validates into `Detections` (polars only parses, inferring types). Peak memory: the "
             "read of the file's bytes in a child process, VmHWM above its VmRSS once they are "
             "loaded and a two-line file read (polars' one-time start, shown beside); arrays: "
-            "the columns and their strings (each distinct one once), the ids as polars' column, "
-            "as the read holds them.",
-            "- The detection ids stay polars' column until something reads them as Python strs "
-            "(the CLI's and the service's JSON writers never do): `and the ids as str` is the read "
-            "followed by that first read of `detection_id`.",
+            "the columns and their strings (each distinct one once), the ids and labels as "
+            "polars' columns, as the read holds them.",
+            "- The detection ids and labels stay polars' columns until something reads them as "
+            "Python strs (the CLI's and the service's JSON writers and the scoring never do): "
+            "`and the ids as str` is the read followed by that first read of `detection_id`.",
         ]
     )
     return table
