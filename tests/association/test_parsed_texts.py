@@ -31,6 +31,9 @@ def test_the_fast_reader_keeps_the_parsed_ids_and_reads_as_the_exact_reader():
     assert ids.dtype == object and ids.tolist() == exact(CSV).detection_id.tolist()
     assert all(type(i) is str for i in ids)
     assert fast.detection_id is ids  # made once
+    sensors = fast.parsed_texts("sensor_id")
+    assert sensors is not None and sensors.to_list() == fast.sensor_id.tolist()
+    assert fast.sensor_id.tolist() == exact(CSV).sensor_id.tolist()
     assert fast.parsed_texts("detection_id") is parsed  # still there for a writer
 
 
@@ -59,7 +62,8 @@ def test_parsed_ids_go_through_every_operation_on_detections():
         assert copy.parsed_texts("detection_id") is fresh.parsed_texts("detection_id")
     result = associate(fresh, "assignment", {})
     made = [texts.made for texts in vars(fresh).values() if isinstance(texts, ParsedTexts)]
-    assert made == [False, False]  # `associate` made no str of an id nor of a label
+    # `associate` made no str of an id nor of a label (the sensors' were made by the read).
+    assert made == [True, False, False]
     assert result.metrics == associate(plain, "assignment", {}).metrics
     assert fresh.target.tolist() == plain.target.tolist()
     joined = concatenate([fast, read_detections_csv(CSV)])

@@ -61,7 +61,8 @@ __all__ = [
 
 _DETECTION_IDS = DeferredColumn()
 _TARGETS = DeferredColumn()
-_DEFERRED = {"detection_id": _DETECTION_IDS, "target": _TARGETS}
+_SENSOR_IDS = DeferredColumn()
+_DEFERRED = {"sensor_id": _SENSOR_IDS, "detection_id": _DETECTION_IDS, "target": _TARGETS}
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,11 +81,11 @@ class Detections:
     position: FloatArray
     velocity: FloatArray
     timestamp: FloatArray
-    sensor_id: ObjectArray
     # Object arrays to every reader; the fast CSV reader may give them as the parser's
-    # columns, made into the arrays on first read (`parsed_texts`).
-    # Neither has a default: the descriptor says so (its class read raises AttributeError, as
-    # dataclasses documents for descriptor-typed fields).
+    # columns, made into the arrays on first read (`parsed_texts`). None has a default: the
+    # descriptor says so (its class read raises AttributeError, as dataclasses documents for
+    # descriptor-typed fields).
+    sensor_id: DeferredColumn = _SENSOR_IDS
     detection_id: DeferredColumn = _DETECTION_IDS
     target: DeferredColumn = _TARGETS
     lane: IntArray = field(default=None)  # type: ignore[arg-type]
@@ -162,9 +163,9 @@ class Detections:
         return int(self.position.size)
 
     def parsed_texts(self, name: str) -> pl.Series | None:
-        """The column `name` (`detection_id` or `target`) as the CSV parser made it (a polars
-        String column, null where a label is empty), when it did: a writer that joins its
-        text in polars, or the scoring, takes it so, without a str per row."""
+        """The column `name` (`sensor_id`, `detection_id` or `target`) as the CSV parser made
+        it (a polars String column, null where a label is empty), when it did: a writer that
+        joins its text in polars, or the scoring, takes it so, without a str per row."""
         parsed = _DEFERRED[name].parsed(self)
         return None if parsed is None else parsed.series
 

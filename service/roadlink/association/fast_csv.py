@@ -256,7 +256,7 @@ def _sensor_ids(frame: pl.DataFrame, position: Any) -> Any:
     at[codes] = position
     if not np.array_equal(at[codes], position):
         return None
-    return _shared(column, names, codes)
+    return ParsedTexts(column, objects=_shared(column, names, codes))
 
 
 def text_codes(column: pl.Series) -> tuple[list[str], Any]:

@@ -23,14 +23,17 @@ if TYPE_CHECKING:
 
 class ParsedTexts:
     """A polars String column (null where a cell is empty), and its object array (None there)
-    once asked for, made by `make` (one str per row by default)."""
+    once asked for, made by `make` (one str per row by default) or given made (`objects`)."""
 
     def __init__(
-        self, series: pl.Series, make: Callable[[pl.Series], ObjectArray] | None = None
+        self,
+        series: pl.Series,
+        make: Callable[[pl.Series], ObjectArray] | None = None,
+        objects: ObjectArray | None = None,
     ) -> None:
         self.series = series
         self._make = make
-        self._objects: ObjectArray | None = None
+        self._objects = objects  # made already, where the parser had it at hand
         self._lock = threading.Lock()
 
     def __len__(self) -> int:

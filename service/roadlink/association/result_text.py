@@ -166,7 +166,7 @@ class _RowTexts:
         # orjson's compact floats are its own spelling; the indented text is Python's.
         self.spelling = "python" if layout.indented else "orjson"
         self.polars = len(d) >= _POLARS_ROWS
-        self.ids, self.sensors = self._ids(), self._texts(d.sensor_id)
+        self.ids, self.sensors = self._parsed("detection_id"), self._parsed("sensor_id")
         # Ids are never None; the constant text around them quotes them, when none needs
         # escaping (else they are JSON strings already). Plain ids, the common case, are told
         # by one search for either kind of character.
@@ -184,11 +184,12 @@ class _RowTexts:
             else (result.groups >= 0) & ~np.isnan(result.link_confidence)
         )
 
-    def _ids(self) -> Any:
-        """The ids' texts: in polars, the CSV parser's own column when it made them."""
+    def _parsed(self, name: str) -> Any:
+        """The texts of the ids or sensor ids: in polars, the CSV parser's own column when it
+        made one (no str per row to turn into polars)."""
         d = self.result.detections
-        parsed = d.parsed_texts("detection_id") if self.polars else None
-        return parsed if parsed is not None else self._texts(d.detection_id)
+        parsed = d.parsed_texts(name) if self.polars else None
+        return parsed if parsed is not None else self._texts(getattr(d, name))
 
     def _texts(self, values: Any) -> Any:
         return text_column(values) if self.polars else values
