@@ -6,7 +6,8 @@ back into a polars column. The fast reader (`fast_csv`) therefore hands `Detecti
 and labels as the parser's columns (`ParsedTexts`); `Detections.detection_id` and `.target` are
 the object arrays all the same, made on first read (`DeferredColumn`), and a writer or the
 scoring that can take the parser's column asks for it (`Detections.parsed_texts`) and never
-makes the strs.
+makes the strs. The sensor ids' strs (a few, shared by their rows) the read makes anyway, to
+check each id's position: their column is kept beside them, for the writers.
 """
 
 from __future__ import annotations
@@ -35,9 +36,6 @@ class ParsedTexts:
         self._make = make
         self._objects = objects  # made already, where the parser had it at hand
         self._lock = threading.Lock()
-
-    def __len__(self) -> int:
-        return self.series.len()
 
     @property
     def made(self) -> bool:
