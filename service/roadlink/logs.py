@@ -17,9 +17,10 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from roadlink.settings import Settings
+if TYPE_CHECKING:
+    from roadlink.settings import Settings
 
 # The ids a log line may carry, in the order a JSON line shows them.
 CONTEXT_FIELDS = ("request_id", "deployment_id", "batch_id", "job_id")

@@ -79,11 +79,14 @@ def test_the_deferred_imports_are_what_the_core_imports_on_first_use():
     assert printed_by(script) == "[]"
 
 
-def test_the_cli_imports_neither_scikit_learn_nor_scipy():
-    """Every `roadlink` command imports the CLI; what only some commands need is deferred."""
+def test_the_cli_imports_only_what_every_command_needs():
+    """Every `roadlink` command imports the CLI; what only some commands need is deferred:
+    scikit-learn and scipy, polars, httpx (the remote commands), pydantic-settings (the
+    server's and the configuration's commands)."""
+    deferred = {"sklearn", "scipy", "polars", "httpx", "pydantic_settings"}
     script = (
         "import sys\n"
         "import roadlink.cli\n"
-        "print(sorted({m.split('.')[0] for m in sys.modules} & {'sklearn', 'scipy'}))\n"
+        f"print(sorted({{m.split('.')[0] for m in sys.modules}} & {deferred!r}))\n"
     )
     assert printed_by(script) == "[]"
