@@ -151,3 +151,22 @@ def test_unlabelled_simulation_has_no_metrics(tmp_path):
     runner.invoke(app, ["simulate", "--unlabelled", "-o", str(path)])
     result = runner.invoke(app, ["associate", str(path), "--associator", "kmeans++", "--json"])
     assert json.loads(result.stdout)["metrics"] is None
+
+
+def test_the_command_ends_with_the_collector_frozen(monkeypatch):
+    """`roadlink` (`main`) runs the app and, however it ends, freezes the garbage collector, so
+    that the interpreter's exit does not collect every object of numpy, polars and scipy."""
+    import gc
+
+    import roadlink.cli
+
+    frozen = []
+    monkeypatch.setattr(gc, "freeze", lambda: frozen.append(True))
+
+    def app() -> None:
+        raise SystemExit(3)
+
+    monkeypatch.setattr(roadlink.cli, "app", app)
+    with pytest.raises(SystemExit) as ended:
+        roadlink.cli.main()
+    assert ended.value.code == 3 and frozen == [True]

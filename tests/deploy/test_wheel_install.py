@@ -105,7 +105,7 @@ def test_wheel_carries_the_migrations_and_the_command(clean_install):
     with zipfile.ZipFile(clean_install.wheel) as wheel:
         names = set(wheel.namelist())
         (entry_points,) = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
-        assert "roadlink = roadlink.cli:app" in wheel.read(entry_points).decode()
+        assert "roadlink = roadlink.cli:main" in wheel.read(entry_points).decode()
     migrations = (
         sorted(
             path.relative_to(MIGRATIONS_DIR).as_posix()

@@ -1,3 +1,3 @@
-from roadlink.cli import app
+from roadlink.cli import main
 
-app()
+main()
