@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import KW_ONLY, InitVar, dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -189,9 +190,10 @@ class Detections:
         """Mask of detections whose vehicle class was reported."""
         return np.asarray(self.vehicle_class != None, dtype=bool)  # noqa: E711 (elementwise)
 
-    @property
+    @cached_property
     def features(self) -> tuple[str, ...]:
-        """The optional feature columns that at least one detection reports, in contract order."""
+        """The optional feature columns that at least one detection reports, in contract order
+        (found once: a result's writers ask several times, 10 ms each at 10^6 detections)."""
         present = (
             ("lane", self.has_lane),
             ("length", self.has_length),
