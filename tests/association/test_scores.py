@@ -147,3 +147,30 @@ def test_the_parsers_label_column_scores_as_the_object_array(seed):
     objects = np.array(names, dtype=object)
     assert score_grouping(pred, pl.Series(names, dtype=pl.String)) == score_grouping(pred, objects)
     assert score_grouping(pred, pl.Series([None] * n, dtype=pl.String)) is None
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_cells_alone_in_their_row_and_column_are_taken_and_the_rest_solved(seed):
+    """A good grouping's table is mostly cells alone in their row and column, taken without
+    the solver: the matching is one-to-one and as heavy as the dense Hungarian method's."""
+    from scipy.optimize import linear_sum_assignment
+
+    rng = np.random.default_rng(seed)
+    n_targets = int(rng.integers(5, 60))
+    truth = np.repeat(np.arange(n_targets), rng.integers(1, 6, n_targets))
+    pred = truth.copy()
+    mixed = rng.random(truth.size) < rng.uniform(0, 0.4)  # some detections in other groups
+    pred[mixed] = rng.integers(0, n_targets + 5, int(mixed.sum()))
+    groups, targets, counts = scores._pair_counts(pred, truth)
+    matched_groups, matched_targets, matched_counts = scores._best_matching(groups, targets, counts)
+    assert np.unique(matched_groups).size == matched_groups.size
+    assert np.unique(matched_targets).size == matched_targets.size
+    cell_count = {(int(a), int(b)): int(c) for a, b, c in zip(groups, targets, counts, strict=True)}
+    assert all(
+        cell_count[int(a), int(b)] == c
+        for a, b, c in zip(matched_groups, matched_targets, matched_counts, strict=True)
+    )
+    table = np.zeros((pred.max() + 1, truth.max() + 1), dtype=int)
+    np.add.at(table, (pred, truth), 1)
+    r, c = linear_sum_assignment(table, maximize=True)
+    assert int(matched_counts.sum()) == int(table[r, c].sum())

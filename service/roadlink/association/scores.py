@@ -146,11 +146,34 @@ def _best_matching(
     """The best one-to-one matching of groups to targets (an assignment problem), as matched
     (group, target, count) triples, from the table's non-zero cells (group, target, count).
 
-    The contingency table is sparse (a group mostly holds one target) and can be 20,000 x
-    20,000, so it is solved as a sparse assignment (LAPJVsp). Every group also gets a private
-    "no target" column so that a full matching of the groups always exists; costs are
-    `top - count`, so minimising cost maximises the matched count.
+    A cell alone in its group's row and in its target's column is in every best matching
+    (neither side has another to match, and its count is positive), so those cells, most of
+    a good grouping's, are taken as they are and only the rest is solved: 0.45 s -> 0.02 for
+    a 10^6-detection result's 20,000 groups.
     """
+    _, g = np.unique(groups, return_inverse=True)
+    _, t = np.unique(targets, return_inverse=True)
+    alone = (np.bincount(g)[g] == 1) & (np.bincount(t)[t] == 1)
+    rest_groups, rest_targets, rest_counts = _solved_matching(
+        groups[~alone], targets[~alone], counts[~alone]
+    )
+    return (
+        np.concatenate([groups[alone], rest_groups]),
+        np.concatenate([targets[alone], rest_targets]),
+        np.concatenate([counts[alone], rest_counts]),
+    )
+
+
+def _solved_matching(
+    groups: IntArray, targets: IntArray, counts: IntArray
+) -> tuple[IntArray, IntArray, IntArray]:
+    """`_best_matching` of the table's cells (group, target, count) by a solver: the table is
+    sparse (a group mostly holds one target) and can be 20,000 x 20,000, so it is solved as a
+    sparse assignment (LAPJVsp). Every group also gets a private "no target" column so that a
+    full matching of the groups always exists; costs are `top - count`, so minimising cost
+    maximises the matched count."""
+    if groups.size == 0:
+        return groups, targets, counts
     group_ids, g = np.unique(groups, return_inverse=True)
     target_ids, t = np.unique(targets, return_inverse=True)
     n_g, n_t = int(g.max()) + 1, int(t.max()) + 1
