@@ -20,6 +20,7 @@ from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR, As
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.association.result_text import write_result_json
 from roadlink.cli import app
+from roadlink.cli.allocator import keep_freed_memory
 from roadlink.plots import PLOT_FORMATS, PLOT_KINDS, render_plot
 from roadlink.simulation import PRESETS, preset, simulate
 from roadlink.simulation.config import DEFAULT_LANE_CHANGE_PROBABILITY
@@ -67,6 +68,7 @@ def parse_param_options(values: list[str]) -> dict[str, str]:
 
 def associate_file(file: Path, associator: str, param: list[str]) -> AssociationResult:
     """Read a detection CSV ('-' = stdin) and associate it; exit 2 with the reason on bad input."""
+    keep_freed_memory()  # the command associates once and ends (see `allocator`)
     try:
         # Bytes from stdin: the fast path (polars) reads them as they are, without a decoded
         # copy; a file is mapped, and polars reads it itself.
