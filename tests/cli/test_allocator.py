@@ -18,15 +18,18 @@ def test_glibc_takes_the_settings_where_it_is_the_c_library():
     assert done.stdout.strip() == str(sys.platform.startswith("linux") and glibc)
 
 
-def test_associating_a_file_sets_the_allocator_first(monkeypatch, tmp_path):
+def test_associating_a_file_keeps_freed_memory_then_gives_it_back(monkeypatch, tmp_path):
     calls = []
-    monkeypatch.setattr(analysis, "keep_freed_memory", lambda: calls.append(True) or True)
+    monkeypatch.setattr(analysis, "keep_freed_memory", lambda: calls.append("keep") or True)
+    monkeypatch.setattr(analysis, "release_freed_memory", lambda: calls.append("release"))
     path = tmp_path / "d.csv"
     path.write_text("position,velocity,timestamp\n0,20,1\n100,20,6\n")
     analysis.associate_file(path, "assignment", [])
-    assert calls == [True]
+    assert calls == ["keep", "release"]
 
 
-def test_not_glibc_is_no_error(monkeypatch):
+def test_giving_memory_back_runs_where_glibc_is_and_is_no_error_elsewhere(monkeypatch):
+    allocator.release_freed_memory()
     monkeypatch.setattr(allocator.sys, "platform", "darwin")
     assert allocator.keep_freed_memory() is False
+    allocator.release_freed_memory()

@@ -20,7 +20,7 @@ from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR, As
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.association.result_text import write_result_json
 from roadlink.cli import app
-from roadlink.cli.allocator import keep_freed_memory
+from roadlink.cli.allocator import keep_freed_memory, release_freed_memory
 from roadlink.plots import PLOT_FORMATS, PLOT_KINDS, render_plot
 from roadlink.simulation import PRESETS, preset, simulate
 from roadlink.simulation.config import DEFAULT_LANE_CHANGE_PROBABILITY
@@ -83,6 +83,8 @@ def associate_file(file: Path, associator: str, param: list[str]) -> Association
         return associate(detections, associator, parse_param_options(param))
     except (DetectionError, AssociationError) as exc:
         raise fail(f"{file}: {exc}") from None
+    finally:
+        release_freed_memory()
 
 
 @app.command("simulate")
