@@ -85,8 +85,19 @@ def test_detections_with_parsed_ids_pickle(read_first):
     assert parsed is not None and parsed.to_list() == back.detection_id.tolist()
 
 
-def test_threads_reading_at_once_get_one_array():
-    texts = ParsedTexts(pl.Series([f"t{i}" for i in range(100_000)]))
+def test_threads_reading_at_once_make_the_array_once():
+    """Four threads ask at once; the array is made by one of them. The making waits (up to a
+    tenth of a second, letting the others run) so that without the lock all four would be
+    inside it together."""
+    made = []
+    inside = threading.Event()
+
+    def make(series: pl.Series) -> np.ndarray:
+        made.append(True)
+        inside.wait(0.1)  # never set: holds the window open for the other threads
+        return series.to_numpy().astype(object)
+
+    texts = ParsedTexts(pl.Series([f"t{i}" for i in range(1000)]), make=make)
     barrier = threading.Barrier(4)
     seen = []
 
@@ -99,6 +110,7 @@ def test_threads_reading_at_once_get_one_array():
         thread.start()
     for thread in threads:
         thread.join()
+    assert len(made) == 1
     assert len({id(array) for array in seen}) == 1
 
 

@@ -62,16 +62,7 @@ def read_detections_csv(text: str | bytes | Path) -> Detections:
     read); a file of no bytes cannot be mapped, and is read.
     """
     if isinstance(text, Path):
-        with text.open("rb") as file:
-            if os.fstat(file.fileno()).st_size and file.read(len(UTF8_BOM)) != UTF8_BOM:
-                # The map is closed before polars maps the file: one map of it at a time.
-                with mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
-                    layout = plain_layout(mapped)
-                fast = None if layout is None else plain_detections(text, layout)
-                if fast is not None:
-                    return fast
-                return read_detections_csv_exactly(text.read_bytes().decode("utf-8-sig"))
-            text = text.read_bytes()
+        return _read_file(text)
     data = text if isinstance(text, bytes) else text.encode("utf-8")
     fast = fast_detections(data)
     if fast is not None:
@@ -79,6 +70,25 @@ def read_detections_csv(text: str | bytes | Path) -> Detections:
     return read_detections_csv_exactly(
         text.decode("utf-8-sig") if isinstance(text, bytes) else text
     )
+
+
+def _read_file(path: Path) -> Detections:
+    """`read_detections_csv` of the file at `path`, mapped for the fast path; one that cannot
+    be mapped (no bytes: empty, or a pipe) or starts with a byte-order mark, read as bytes."""
+    with path.open("rb") as file:
+        if not os.fstat(file.fileno()).st_size:
+            return read_detections_csv(file.read())
+        if file.read(len(UTF8_BOM)) == UTF8_BOM:
+            file.seek(0)
+            return read_detections_csv(file.read())
+        # The map is closed before polars maps the file: one map of it at a time.
+        with mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
+            layout = plain_layout(mapped)
+        fast = None if layout is None else plain_detections(path, layout)
+        if fast is not None:
+            return fast
+        file.seek(0)
+        return read_detections_csv_exactly(file.read().decode("utf-8"))
 
 
 def read_detections_csv_exactly(text: str) -> Detections:

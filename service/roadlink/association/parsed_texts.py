@@ -97,7 +97,7 @@ class DeferredColumn:
 
     def parsed(self, instance: object) -> ParsedTexts | None:
         """The column as the parser gave it, when it did."""
-        value = instance.__dict__[self.slot]
+        value = self.stored(instance)
         return value if isinstance(value, ParsedTexts) else None
 
 

@@ -51,9 +51,12 @@ def score_grouping(groups: IntArray, labels: ObjectArray | pl.Series) -> Metrics
     if not labelled.any():
         return None
     pred = np.asarray(groups, dtype=np.int64)[labelled]
+    both = (pred >= 0) & (truth >= 0)  # in a group and of a target
+    # The contingency table's cells, which the accuracy and the pair counts both read.
+    cells = _pair_counts(pred[both], truth[both]) if both.any() else None
 
-    accuracy = _matched_accuracy(pred, truth)
-    precision, recall = _pairwise_precision_recall(pred, truth)
+    accuracy = _matched_accuracy(pred, truth, cells)
+    precision, recall = _pairwise_precision_recall(pred, truth, cells)
     f1 = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
     return Metrics(
         accuracy=accuracy,
@@ -65,11 +68,10 @@ def score_grouping(groups: IntArray, labels: ObjectArray | pl.Series) -> Metrics
     )
 
 
-def _matched_accuracy(pred: IntArray, truth: IntArray) -> float:
+def _matched_accuracy(pred: IntArray, truth: IntArray, cells: Cells | None) -> float:
     right = int(np.sum((pred == -1) & (truth == -1)))
-    both = (pred >= 0) & (truth >= 0)
-    if both.any():
-        right += _max_matching_weight(*_pair_counts(pred[both], truth[both]))
+    if cells is not None:
+        right += _max_matching_weight(*cells)
     return right / pred.size
 
 
@@ -100,7 +102,11 @@ def _target_codes(labels: ObjectArray) -> IntArray:
     return np.fromiter(map(code.__getitem__, texts), dtype=np.int64, count=len(texts))
 
 
-def _pair_counts(pred: IntArray, truth: IntArray) -> tuple[IntArray, IntArray, IntArray]:
+Cells = tuple[IntArray, IntArray, IntArray]
+"""The non-zero cells of a group x target contingency table: (group, target, count)."""
+
+
+def _pair_counts(pred: IntArray, truth: IntArray) -> Cells:
     """The non-zero cells of the group x target contingency table: (group, target, count), in
     (group, target) order. `truth` is never negative, so a cell's key is one integer (pred
     may be -1: its keys sort first)."""
@@ -118,11 +124,10 @@ def wrongly_grouped(groups: IntArray, labels: ObjectArray) -> npt.NDArray[np.boo
     is exactly (1 - accuracy) x the number of labelled ones.
     """
     groups = np.asarray(groups, dtype=np.int64)
-    labelled = np.array([t is not None for t in labels], dtype=bool)
+    labelled, truth = _labelled_codes(labels)
     wrong = np.zeros(groups.size, dtype=bool)
     if not labelled.any():
         return wrong
-    truth = _target_codes(labels[labelled])
     pred = groups[labelled]
     right = (pred == -1) & (truth == -1)
     both = (pred >= 0) & (truth >= 0)
@@ -203,11 +208,12 @@ def _pairs_within(ids: IntArray) -> int:
     return int(np.sum(counts * (counts - 1) // 2))
 
 
-def _pairwise_precision_recall(pred: IntArray, truth: IntArray) -> tuple[float, float]:
-    both = (pred >= 0) & (truth >= 0)
+def _pairwise_precision_recall(
+    pred: IntArray, truth: IntArray, cells: Cells | None
+) -> tuple[float, float]:
     agreeing = 0
-    if both.any():
-        counts = _pair_counts(pred[both], truth[both])[2]
+    if cells is not None:
+        counts = cells[2]
         agreeing = int(np.sum(counts * (counts - 1) // 2))
     predicted, true = _pairs_within(pred), _pairs_within(truth)
     precision = agreeing / predicted if predicted else 1.0
