@@ -15,7 +15,11 @@ from roadlink.association import associate, result_text
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.association.detections import Detections
 from roadlink.association.result import build_result
-from roadlink.association.result_text import result_json_compact, result_json_text
+from roadlink.association.result_text import (
+    json_detection_texts,
+    result_json_compact,
+    result_json_text,
+)
 from roadlink.simulation import preset, simulate
 
 
@@ -62,6 +66,34 @@ def results():
 @pytest.mark.parametrize("result", results())
 def test_the_cli_json_is_json_dumps_byte_for_byte(result):
     assert result_json_text(result) == json.dumps(result.to_dict(), indent=2) + "\n"
+
+
+@pytest.mark.parametrize("result", results())
+def test_the_cli_json_from_row_texts_made_beforehand_is_json_dumps_byte_for_byte(result):
+    """The CLI makes the rows' text that needs no grouping while it associates: the same
+    bytes; texts made of other detections are not taken."""
+    expected = json.dumps(result.to_dict(), indent=2) + "\n"
+    assert result_json_text(result, json_detection_texts(result.detections)) == expected
+    other = dataclasses.replace(result.detections)
+    assert result_json_text(result, json_detection_texts(other)) == expected
+
+
+def test_the_rows_made_beforehand_are_gathered_not_made_again(monkeypatch, rows_made_by):
+    """With texts made beforehand, the writer makes the rows' columns again only for the
+    unassigned detections (rows indented otherwise); by Python lists, nothing is made ahead."""
+    result = results()[1]  # faulty traffic: unassigned detections too
+    texts = json_detection_texts(result.detections)
+    made = []
+    making = result_text.DetectionTexts._columns
+    monkeypatch.setattr(
+        result_text.DetectionTexts,
+        "_columns",
+        lambda self, index, inner: made.append(inner) or making(self, index, inner),
+    )
+    result_json_text(result, texts)
+    inner = result_text.TARGET_ROWS_INDENT + 2
+    assert (result.groups < 0).any()
+    assert made == ([4 + 2] if rows_made_by == "polars" else [inner, 4 + 2])
 
 
 @pytest.mark.parametrize("result", results())
@@ -131,6 +163,7 @@ def test_any_ids_groups_and_links_write_as_the_plain_writers_do(rows, seed, link
     confidence = np.where(rng.random(n) < 0.3, np.nan, rng.random(n)) if links else None
     result = build_result(d, groups, "x", {}, link_confidence=confidence)
     assert result_json_text(result) == json.dumps(result.to_dict(), indent=2) + "\n"
+    assert result_json_text(result, json_detection_texts(d)) == result_json_text(result)
     assert result_json_compact(result) == orjson.dumps(result.to_dict()).decode()
 
 

@@ -27,6 +27,7 @@ import orjson
 from roadlink.association.text_columns import (
     float_column,
     has_any,
+    joined_columns,
     joined_rows,
     made_in_order,
     text_column,
@@ -34,19 +35,24 @@ from roadlink.association.text_columns import (
 )
 
 if TYPE_CHECKING:
+    from roadlink.association.detections import Detections
     from roadlink.association.result import AssociationResult
 
 
-def result_json_text(result: AssociationResult) -> str:
+def result_json_text(result: AssociationResult, texts: DetectionTexts | None = None) -> str:
     """`json.dumps(result.to_dict(), indent=2) + "\\n"`: what `write_result_json` writes."""
     out = io.BytesIO()
-    write_result_json(result, out)
+    write_result_json(result, out, texts)
     return out.getvalue().decode()
 
 
-def write_result_json(result: AssociationResult, stream: BinaryIO) -> None:
+def write_result_json(
+    result: AssociationResult, stream: BinaryIO, texts: DetectionTexts | None = None
+) -> None:
     """Write `json.dumps(result.to_dict(), indent=2) + "\\n"` to `stream`, as UTF-8 (ASCII: the
     plain encoder escapes the rest), a few targets at a time, without the row objects.
+    `texts`, when given, are `json_detection_texts` of the result's detections (made while
+    they were associated).
 
     orjson writes the document with a hole for each target's detections and for the unassigned
     ones; their text is written into the holes from the columns (`_filled`), a batch of
@@ -57,7 +63,9 @@ def write_result_json(result: AssociationResult, stream: BinaryIO) -> None:
     """
     holes: list[Any] = []
     document = result.document(_holes_into(holes))
-    rows = _RowTexts(result, _INDENTED)
+    if texts is None or texts.detections is not result.detections:
+        texts = DetectionTexts(result.detections, _INDENTED)
+    rows = _RowTexts(result, texts)
     try:
         if not rows.agree:
             raise _Disagrees
@@ -74,13 +82,19 @@ def write_result_json(result: AssociationResult, stream: BinaryIO) -> None:
     stream.write(b"\n")
 
 
+def json_detection_texts(detections: Detections) -> DetectionTexts:
+    """What `write_result_json` takes of `detections` alone, made before their grouping is
+    known (see `DetectionTexts.prepared`)."""
+    return DetectionTexts(detections, _INDENTED).prepared()
+
+
 def result_json_compact(result: AssociationResult) -> str:
     """`orjson.dumps(result.to_dict()).decode()`, the same text (the service's stored result),
     written as `write_result_json` writes its own: orjson writes the document with holes, the
     rows' text is joined from the columns into them. orjson's own spelling throughout, so no
     value needs respelling; only where the rows' text would not be orjson's (text that is not
     printable ASCII, a value that is not finite) does orjson write the row objects."""
-    rows = _RowTexts(result, _COMPACT)
+    rows = _RowTexts(result, DetectionTexts(result.detections, _COMPACT))
     if not rows.agree:
         return orjson.dumps(result.to_dict()).decode()
     holes: list[Any] = []
@@ -151,45 +165,71 @@ _INDENTED = _Layout(indented=True, colon=": ")
 _COMPACT = _Layout(indented=False, colon=":")
 
 
-class _RowTexts:
-    """The text of the detection rows, as `json.dumps(indent=2)` writes them (or orjson's
-    compact text, by `layout`), from the columns: each column's text made at once, the
-    constant text between them given once, and all rows joined at once. From `_POLARS_ROWS`
-    rows polars makes and joins the columns (`text_columns`: no Python object per value);
-    below, where polars' fixed cost per call (about a millisecond) would outweigh the rows,
-    Python lists do (a paper-size job's result is written in the service's every job)."""
+class DetectionTexts:
+    """What the rows' text takes of the detections alone, before their grouping is known: the
+    texts of the ids and sensor ids, whether they need escaping, and (`prepared`) each row's
+    text from its id to its timestamp, made at once for every detection. From `_POLARS_ROWS`
+    rows polars makes them (`text_columns`: no Python object per value); below, where polars'
+    fixed cost per call (about a millisecond) would outweigh the rows, Python lists do (a
+    paper-size job's result is written in the service's every job)."""
 
-    def __init__(self, result: AssociationResult, layout: _Layout) -> None:
-        d = result.detections
-        self.result = result
+    def __init__(self, detections: Detections, layout: _Layout) -> None:
+        self.detections = detections
         self.layout = layout
         # orjson's compact floats are its own spelling; the indented text is Python's.
         self.spelling = "python" if layout.indented else "orjson"
-        self.polars = len(d) >= _POLARS_ROWS
+        self.polars = len(detections) >= _POLARS_ROWS
         self.ids, self.sensors = self._parsed("detection_id"), self._parsed("sensor_id")
         # Ids are never None; the constant text around them quotes them, when none needs
         # escaping (else they are JSON strings already). Plain ids, the common case, are told
         # by one search for either kind of character.
         plain = not self._holds(r'[^ -~]|["\\]')
-        self.agree = _columns_agree(result) and (plain or not self._holds(_NOT_PRINTABLE_ASCII))
+        self.agree = _columns_agree(detections) and (plain or not self._holds(_NOT_PRINTABLE_ASCII))
         self.quote = '"'
         if self.agree and not plain:
             self.quote = ""
-            self.ids = self._texts(_json_strings(d.detection_id))
-            self.sensors = self._texts(_json_strings(d.sensor_id))
-        self.features = d.features
-        self.linked = (
-            None
-            if result.link_confidence is None
-            else (result.groups >= 0) & ~np.isnan(result.link_confidence)
-        )
+            self.ids = self._texts(_json_strings(detections.detection_id))
+            self.sensors = self._texts(_json_strings(detections.sensor_id))
+        self._prepared: dict[int, Any] = {}
+
+    def prepared(self) -> DetectionTexts:
+        """These texts with the rows of the targets' detections made for every detection
+        (polars only; a target's detections are most of them), so that writing a result
+        only gathers them: on a thread beside the association, that leaves the writer only
+        what the grouping decides (the CLI's --json)."""
+        if self.polars and self.agree:
+            inner = TARGET_ROWS_INDENT + 2
+            everyone = np.arange(len(self.detections))
+            self._prepared[inner] = joined_columns(self._columns(everyone, inner))
+        return self
+
+    def columns(self, index: Any, inner: int) -> list[Any]:
+        """The text of rows `index` from their id to their timestamp (the id's key and quote
+        before them are not included), keys at `inner` spaces: as parts for `joined_rows`."""
+        prepared = self._prepared.get(inner)
+        if prepared is not None:
+            return [prepared.gather(index)]
+        return self._columns(index, inner)
+
+    def _columns(self, index: Any, inner: int) -> list[Any]:
+        d, layout, q = self.detections, self.layout, self.quote
+        return [
+            self._gather(self.ids, index),
+            q + "," + layout.key(inner, "sensor_id") + q,
+            self._gather(self.sensors, index),
+            q + "," + layout.key(inner, "position"),
+            self.floats(d.position[index]),
+            "," + layout.key(inner, "velocity"),
+            self.floats(d.velocity[index]),
+            "," + layout.key(inner, "timestamp"),
+            self.floats(d.timestamp[index]),
+        ]
 
     def _parsed(self, name: str) -> Any:
         """The texts of the ids or sensor ids: in polars, the CSV parser's own column when it
         made one (no str per row to turn into polars)."""
-        d = self.result.detections
-        parsed = d.parsed_texts(name) if self.polars else None
-        return parsed if parsed is not None else self._texts(getattr(d, name))
+        parsed = self.detections.parsed_texts(name) if self.polars else None
+        return parsed if parsed is not None else self._texts(getattr(self.detections, name))
 
     def _texts(self, values: Any) -> Any:
         return text_column(values) if self.polars else values
@@ -201,15 +241,43 @@ class _RowTexts:
         texts = "".join(self.ids.tolist()) + "".join(set(self.sensors.tolist()))
         return re.search(pattern, texts) is not None
 
+    def _gather(self, texts: Any, index: Any) -> Any:
+        return texts.gather(index) if self.polars else texts[index].tolist()
+
+    def floats(self, values: Any) -> Any:
+        if self.polars:
+            return float_column(values, spelling=self.spelling)
+        return float_texts(values, spelling=self.spelling)
+
+
+# The indent of a target's detection rows in the indented JSON (`{` of each row).
+TARGET_ROWS_INDENT = 8
+
+
+class _RowTexts:
+    """The text of the detection rows, as `json.dumps(indent=2)` writes them (or orjson's
+    compact text, by `layout`), from the columns: each column's text made at once (or taken
+    from `DetectionTexts`), the constant text between them given once, and all rows joined
+    at once."""
+
+    def __init__(self, result: AssociationResult, texts: DetectionTexts) -> None:
+        self.result = result
+        self.texts = texts
+        self.layout = texts.layout
+        self.polars = texts.polars
+        links = result.link_confidence
+        self.agree = texts.agree and (links is None or bool(np.all(~np.isinf(links))))
+        self.linked = None if links is None else (result.groups >= 0) & ~np.isnan(links)
+
     def text(self, pieces: list[str], holes: list[Any], indent: int) -> str:
         """Each of `pieces` followed by the JSON list of its hole's rows (indices into the
         detections; their `{` at `indent` spaces), as one text. Only a last hole may be empty."""
         index = np.concatenate(holes)
         if index.size == 0:
             return "".join(p + "[]" for p in pieces)
-        d, layout, q = self.result.detections, self.layout, self.quote
+        layout = self.layout
         inner = indent + 2
-        opening = layout.line(indent) + "{" + layout.key(inner, "detection_id") + q
+        opening = layout.line(indent) + "{" + layout.key(inner, "detection_id") + self.texts.quote
         close_row, close_list = layout.line(indent) + "}", layout.line(indent - 2) + "]"
         lead = ["," + opening] * index.size
         start = 0
@@ -218,15 +286,7 @@ class _RowTexts:
             start += members.size
         parts: list[Any] = [
             lead,
-            self._gather(self.ids, index),
-            q + "," + layout.key(inner, "sensor_id") + q,
-            self._gather(self.sensors, index),
-            q + "," + layout.key(inner, "position"),
-            self._floats(d.position[index]),
-            "," + layout.key(inner, "velocity"),
-            self._floats(d.velocity[index]),
-            "," + layout.key(inner, "timestamp"),
-            self._floats(d.timestamp[index]),
+            *self.texts.columns(index, inner),
             *self._extra(index, inner, close_row),
         ]
         if self.polars:
@@ -235,21 +295,14 @@ class _RowTexts:
             close_list
         )
 
-    def _gather(self, texts: Any, index: Any) -> Any:
-        return texts.gather(index) if self.polars else texts[index].tolist()
-
-    def _floats(self, values: Any) -> Any:
-        if self.polars:
-            return float_column(values, spelling=self.spelling)
-        return float_texts(values, spelling=self.spelling)
-
     def _extra(self, index: Any, inner: int, close_row: str) -> list[Any]:
         """What follows a row's timestamp: its features, when the input has them, its link's
         confidence where it has one, and the row's closing brace."""
         extra: list[Any] = []
-        if self.features:  # rare beside a million rows: a string per row is fine
+        features = self.result.detections.features
+        if features:  # rare beside a million rows: a string per row is fine
             cells = np.full(index.size, "", dtype=object)
-            for name in self.features:
+            for name in features:
                 cells = cells + ("," + self.layout.key(inner, name)) + self._feature(name, index)
             extra.append(cells.tolist())
         if self.linked is None or self.result.link_confidence is None:
@@ -258,8 +311,12 @@ class _RowTexts:
         links = np.where(linked, self.result.link_confidence[index], 0.0)  # no NaN to spell
         prefix = "," + self.layout.key(inner, "link_confidence")
         if self.polars:
-            return [*extra, where(linked, [prefix, self._floats(links), close_row], close_row)]
-        texts = np.array(float_texts(links, prefix, close_row, self.spelling), dtype=object)
+            return [
+                *extra,
+                where(linked, [prefix, self.texts.floats(links), close_row], close_row),
+            ]
+        spelling = self.texts.spelling
+        texts = np.array(float_texts(links, prefix, close_row, spelling), dtype=object)
         return [*extra, np.where(linked, texts, close_row).tolist()]
 
     def _feature(self, name: str, index: Any) -> Any:
@@ -269,7 +326,7 @@ class _RowTexts:
             cells = np.array([str(v) for v in values.tolist()], dtype=object)
             cells[values < 0] = "null"
         elif name == "length":
-            cells = np.array(float_texts(values, spelling=self.spelling), dtype=object)
+            cells = np.array(float_texts(values, spelling=self.texts.spelling), dtype=object)
             cells[np.isnan(values)] = "null"
         else:
             cells = _json_strings(values)
@@ -343,13 +400,10 @@ def _respell_targets(targets: list[dict[str, Any]]) -> None:
                 target[key] = _respelt(value)
 
 
-def _columns_agree(result: AssociationResult) -> bool:
+def _columns_agree(d: Detections) -> bool:
     """Whether the detection rows' numbers and classes are written alike by the plain encoder
-    and here: finite numbers, printable ASCII text (the ids: see `_RowTexts`)."""
-    d = result.detections
+    and here: finite numbers, printable ASCII text (the ids: see `DetectionTexts`)."""
     numbers = [d.position, d.velocity, d.timestamp, d.length[~np.isnan(d.length)]]
-    if result.link_confidence is not None:
-        numbers.append(result.link_confidence[~np.isnan(result.link_confidence)])
     classes = _plain_text("".join(filter(None, set(d.vehicle_class.tolist()))))
     return classes and all(bool(np.all(np.isfinite(v))) for v in numbers)
 

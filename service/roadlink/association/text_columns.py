@@ -63,9 +63,14 @@ def joined_rows(parts: list[Any], tail: str = "") -> str:
     """Each row's parts (columns of one length, as polars Series or lists of Python strs,
     expressions over them, or texts the same in every row) one after another, row after row,
     then `tail`, as one text."""
+    return joined(joined_columns(parts), tail)
+
+
+def joined_columns(parts: list[Any]) -> pl.Series:
+    """Each row's parts (as `joined_rows` takes them) one after another: a text per row."""
     import polars as pl
 
-    return joined(pl.select(concatenated(parts)).to_series(), tail)
+    return pl.select(concatenated(parts)).to_series()
 
 
 def joined(texts: pl.Series, tail: str = "") -> str:
