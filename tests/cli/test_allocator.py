@@ -1,9 +1,11 @@
 """The one-shot commands set glibc's allocator to keep freed memory for their next arrays."""
 
+import json
 import platform
 import subprocess
 import sys
 
+from roadlink.association.associators import ASSOCIATORS
 from roadlink.cli import allocator, analysis
 
 
@@ -33,3 +35,62 @@ def test_giving_memory_back_runs_where_glibc_is_and_is_no_error_elsewhere(monkey
     monkeypatch.setattr(allocator.sys, "platform", "darwin")
     assert allocator.keep_freed_memory() is False
     allocator.release_freed_memory()
+
+
+def test_the_heap_is_faulted_in_for_a_large_file_only(monkeypatch, tmp_path):
+    """A file's rows are estimated from its size and first lines; a file whose association
+    needs less heap than the minimum, stdin and a missing file get no thread."""
+    path = tmp_path / "d.csv"
+    path.write_text("position,velocity,timestamp\n" + "0,20,1\n" * 10_000)
+    assert 9_000 < allocator._estimated_rows(path) < 11_000
+    assert allocator.fault_in_heap_for(path, 200) is None  # 2 MB of heap: not worth a thread
+    assert allocator.fault_in_heap_for(tmp_path / "missing.csv", 200) is None
+    assert allocator.fault_in_heap_for(tmp_path, 200) is None  # not a regular file
+    monkeypatch.setattr(allocator, "MIN_HEAP_TO_FAULT_IN", 1 << 20)
+    assert allocator.fault_in_heap_for(path, 0) is None  # an associator that did not say
+    thread = allocator.fault_in_heap_for(path, 200)
+    if platform.libc_ver()[0] != "glibc":
+        assert thread is None
+        return
+    assert thread is not None
+    thread.join()
+    monkeypatch.setattr(allocator.sys, "platform", "darwin")
+    assert allocator.fault_in_heap_for(path, 200) is None
+
+
+def test_associating_a_file_faults_in_its_heap_and_imports_beside_the_read(monkeypatch, tmp_path):
+    started, imported = [], []
+    real = allocator.fault_in_heap_for
+    monkeypatch.setattr(
+        analysis, "fault_in_heap_for", lambda p, b: started.append((p, b)) or real(p, b)
+    )
+    monkeypatch.setattr(analysis.importlib, "import_module", imported.append)
+    path = tmp_path / "d.csv"
+    path.write_text("position,velocity,timestamp\n0,20,1\n100,20,6\n")
+    analysis.associate_file(path, "assignment", [])
+    assignment = ASSOCIATORS["assignment"]
+    assert started == [(path, assignment.heap_per_detection)]
+    assert imported == list(assignment.imports_on_first_use)
+    assert analysis._importing(()) is None
+
+
+def test_what_assignment_imports_on_first_use_is_what_it_imports():
+    """The modules `assignment` names are imported by its first association of a few
+    thousand detections, in a process that had not imported them (the list does not go
+    stale)."""
+    script = (
+        "import json, sys\n"
+        "from roadlink.association import associate\n"
+        "from roadlink.association.associators import ASSOCIATORS\n"
+        "from roadlink.simulation import preset, simulate\n"
+        "names = ASSOCIATORS['assignment'].imports_on_first_use\n"
+        "before = [n for n in names if n in sys.modules]\n"
+        "detections = simulate(preset('congested', n_targets=500), seed=1).detections\n"
+        "associate(detections, 'assignment', {})\n"
+        "print(json.dumps([names, before, [n for n in names if n in sys.modules]]))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, check=True
+    )
+    names, before, after = json.loads(done.stdout)
+    assert names and before == [] and after == names

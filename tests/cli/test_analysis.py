@@ -1,6 +1,7 @@
 """`roadlink simulate` and `roadlink associate` (`cli/analysis.py`) as a user runs them."""
 
 import json
+import threading
 
 import pytest
 from typer.testing import CliRunner
@@ -170,3 +171,39 @@ def test_the_command_ends_with_the_collector_frozen(monkeypatch):
     with pytest.raises(SystemExit) as ended:
         roadlink.cli.main()
     assert ended.value.code == 3 and frozen == [True]
+
+
+def test_the_json_rows_are_made_while_the_file_is_associated(small_csv, monkeypatch):
+    """`--json` makes the rows' text that needs no grouping on a thread beside the association
+    (polars' rows: from any size here), and prints the same bytes as the plain encoder."""
+    from roadlink.association import result_text
+    from roadlink.cli import analysis
+
+    made_on = []
+    making = analysis.json_detection_texts
+
+    def recorded(detections):
+        made_on.append(threading.current_thread().name)
+        return making(detections)
+
+    monkeypatch.setattr(result_text, "_POLARS_ROWS", 0)
+    monkeypatch.setattr(analysis, "json_detection_texts", recorded)
+    result = runner.invoke(app, ["associate", str(small_csv), "--json"])
+    assert result.exit_code == 0, result.output
+    expected = associate(read_detections_csv(small_csv), "assignment").to_dict()
+    assert result.stdout == json.dumps(expected, indent=2) + "\n"
+    assert len(made_on) == 1 and made_on[0].startswith("roadlink-meanwhile")
+
+
+def test_work_beside_the_association_sees_the_detections_and_its_errors_surface(small_csv):
+    from roadlink.cli import analysis
+
+    seen = []
+    result = analysis.associate_file(small_csv, "assignment", [], seen.append)
+    assert seen == [result.detections]
+
+    def broken(detections):
+        raise RuntimeError("beside")
+
+    with pytest.raises(RuntimeError, match="beside"):
+        analysis.associate_file(small_csv, "assignment", [], broken)

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import importlib
 import sys
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Annotated
 
@@ -18,9 +22,17 @@ from roadlink.association import (
 )
 from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR, AssociationError
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
-from roadlink.association.result_text import write_result_json
+from roadlink.association.result_text import (
+    DetectionTexts,
+    json_detection_texts,
+    write_result_json,
+)
 from roadlink.cli import app
-from roadlink.cli.allocator import keep_freed_memory, release_freed_memory
+from roadlink.cli.allocator import (
+    fault_in_heap_for,
+    keep_freed_memory,
+    release_freed_memory,
+)
 from roadlink.plots import PLOT_FORMATS, PLOT_KINDS, render_plot
 from roadlink.simulation import PRESETS, preset, simulate
 from roadlink.simulation.config import DEFAULT_LANE_CHANGE_PROBABILITY
@@ -66,9 +78,20 @@ def parse_param_options(values: list[str]) -> dict[str, str]:
         raise fail(f"--param: {exc}") from None
 
 
-def associate_file(file: Path, associator: str, param: list[str]) -> AssociationResult:
-    """Read a detection CSV ('-' = stdin) and associate it; exit 2 with the reason on bad input."""
+def associate_file(
+    file: Path,
+    associator: str,
+    param: list[str],
+    meanwhile: Callable[[Detections], object] | None = None,
+) -> AssociationResult:
+    """Read a detection CSV ('-' = stdin) and associate it; exit 2 with the reason on bad input.
+    `meanwhile(detections)` runs on a thread while they are associated: what the command does
+    next that does not need the grouping, on the core the association leaves idle."""
     keep_freed_memory()  # the command associates once and ends (see `allocator`)
+    cls = ASSOCIATORS.get(associator)  # an unknown one: `associate` names the known ones
+    heap = 0 if cls is None else cls.heap_per_detection
+    faulting_in = None if str(file) == "-" else fault_in_heap_for(file, heap)
+    importing = None if cls is None else _importing(cls.imports_on_first_use)
     try:
         # Bytes from stdin: the fast path (polars) reads them as they are, without a decoded
         # copy; a file is mapped, and polars reads it itself.
@@ -79,12 +102,31 @@ def associate_file(file: Path, associator: str, param: list[str]) -> Association
         raise fail(f"{file}: not UTF-8 text: byte {exc.start + 1} ({exc.reason})") from None
     except DetectionError as exc:
         raise fail(f"{file}: {exc}") from None
+    for thread in (faulting_in, importing):
+        if thread is not None:
+            thread.join()
     try:
-        return associate(detections, associator, parse_param_options(param))
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="roadlink-meanwhile") as pool:
+            beside = None if meanwhile is None else pool.submit(meanwhile, detections)
+            result = associate(detections, associator, parse_param_options(param))
+            if beside is not None:
+                beside.result()
+            return result
     except (DetectionError, AssociationError) as exc:
         raise fail(f"{file}: {exc}") from None
     finally:
         release_freed_memory()
+
+
+def _importing(modules: tuple[str, ...]) -> threading.Thread | None:
+    """Start importing `modules` on a thread (the read goes on beside it); None for none."""
+    if not modules:
+        return None
+    thread = threading.Thread(
+        target=lambda: [importlib.import_module(m) for m in modules], name="roadlink-imports"
+    )
+    thread.start()
+    return thread
 
 
 @app.command("simulate")
@@ -192,7 +234,9 @@ def associate_command(
     plot_format = None if plot is None else plot_format_of(plot)
     if plot_kind not in PLOT_KINDS:
         raise fail(f"unknown --plot-kind '{plot_kind}'; known: {', '.join(PLOT_KINDS)}")
-    result = associate_file(file, associator, param or [])
+    texts: list[DetectionTexts] = []
+    made_beside = (lambda d: texts.append(json_detection_texts(d))) if as_json else None
+    result = associate_file(file, associator, param or [], made_beside)
     if plot is not None and plot_format is not None:
         try:
             plot.write_bytes(render_plot(result, plot_kind, plot_format))
@@ -202,7 +246,7 @@ def associate_command(
     if as_json:
         # Bytes, straight to the stream: the text of 10^6 detections is hundreds of MiB.
         sys.stdout.flush()
-        write_result_json(result, sys.stdout.buffer)
+        write_result_json(result, sys.stdout.buffer, *texts)
         sys.stdout.buffer.flush()
     elif as_csv:
         sys.stdout.write(result.to_matrix_csv())

@@ -35,6 +35,14 @@ class Associator(ABC):
     description: ClassVar[str]
     needs_labels: ClassVar[bool] = False
     Params: ClassVar[type[AssociatorParams]]
+    imports_on_first_use: ClassVar[tuple[str, ...]] = ()
+    """Modules `group` imports when it first runs, kept out of `import roadlink` (which every
+    command pays for): a one-shot command imports them on a thread while it reads its file,
+    beside the parser, which lets go of the GIL."""
+    heap_per_detection: ClassVar[int] = 0
+    """About how many bytes of heap `group` allocates per detection beyond the detections, at
+    scale, as measured (0: not measured): what a one-shot command touches beforehand, on a
+    thread while it reads its file (`roadlink.cli.allocator`)."""
     effective_params: AssociatorParams | None = None
     """The parameters the last `group` ran with, for an associator that adapts the ones it was
     given to the detections (`assignment` holds those in time units to their time scale): set
