@@ -61,7 +61,7 @@ class FilesPlan:
     repeats: int
 
 
-FULL = FilesPlan(detections=1_000_000, repeats=3)
+FULL = FilesPlan(detections=1_000_000, repeats=5)
 QUICK = FilesPlan(detections=100_000, repeats=3)
 
 READ_NAME = "csv-read"

@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 from roadlink.association.associators import ASSOCIATORS
+from roadlink.association.csvio import READER_IMPORTS
 from roadlink.cli import allocator, analysis
 
 
@@ -70,7 +71,7 @@ def test_associating_a_file_faults_in_its_heap_and_imports_beside_the_read(monke
     analysis.associate_file(path, "assignment", [])
     assignment = ASSOCIATORS["assignment"]
     assert started == [(path, assignment.heap_per_detection)]
-    assert imported == list(assignment.imports_on_first_use)
+    assert imported == [*READER_IMPORTS, *assignment.imports_on_first_use]
     assert analysis._importing(()) is None
 
 

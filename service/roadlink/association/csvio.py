@@ -42,6 +42,10 @@ OPTIONAL_COLUMNS = ("sensor_id", "detection_id", "target", *FEATURE_COLUMNS)
 # `sensorid` must not be dropped in silence.
 KNOWN = (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS)
 
+# What `read_detections_csv` imports on first use (its fast path's parser), kept out of
+# `import roadlink` as the associators' solvers are (`Associator.imports_on_first_use`).
+READER_IMPORTS = ("polars",)
+
 
 class TooManyRows(DetectionError):
     """The CSV has more data rows than the reader was allowed to read."""
