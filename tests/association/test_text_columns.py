@@ -10,6 +10,7 @@ import pytest
 
 from roadlink.association.text_columns import (
     concatenated,
+    encoded_rows,
     float_column,
     has_any,
     joined,
@@ -56,6 +57,12 @@ def test_joined_rows_interleave_columns_and_constant_texts():
     numbers = float_column(np.array([1.0, 1e-5, 2.5]))
     parts = ["<", ids, "=", numbers, pl.lit(">")]
     assert joined_rows(parts, "!") == "<a=1.0><bb=1e-05><c=2.5>!"
+
+
+def test_encoded_rows_are_the_joined_rows_as_utf8():
+    parts = ["<", text_column(["a", "\u00e9t\u00e9", "\U0001f697"]), ">", ["1", "2", "3"]]
+    assert encoded_rows(parts, "\u00e9") == joined_rows(parts, "\u00e9").encode()
+    assert encoded_rows(parts, "\u00e9").decode() == "<a>1<\u00e9t\u00e9>2<\U0001f697>3\u00e9"
 
 
 def test_where_takes_the_text_where_the_mask_holds():

@@ -25,6 +25,7 @@ import numpy as np
 import orjson
 
 from roadlink.association.text_columns import (
+    encoded_rows,
     float_column,
     has_any,
     joined_columns,
@@ -77,8 +78,8 @@ def write_result_json(
         stream.write((json.dumps(result.to_dict(), indent=2) + "\n").encode())
         return
     text = orjson.dumps(document, option=orjson.OPT_INDENT_2).decode()
-    for chunk in _filled(text, holes, rows):
-        stream.write(chunk.encode())
+    for chunk in _filled_bytes(text, holes, rows):
+        stream.write(chunk)
     stream.write(b"\n")
 
 
@@ -117,17 +118,35 @@ def _filled(text: str, holes: list[Any], rows: _RowTexts) -> Iterator[str]:
     """`text` (orjson's, with a hole for each of `holes`) with the holes' rows written in, a
     batch of targets at a time. No text orjson writes holds a NUL (it escapes control
     characters): the holes do."""
-    pieces = text.split(_HOLE_TEXT)
-    unassigned = holes.pop()
-    batches = [
-        (pieces[start:end], holes[start:end], 8) for start, end in pairwise([0, *_batches(holes)])
-    ]
-    batches.append(([pieces[-2]], [unassigned], 4))
+    batches, last = _filling(text, holes)
     if rows.polars:
         yield from made_in_order(lambda batch: rows.text(*batch), batches)
     else:
         yield from (rows.text(*batch) for batch in batches)
-    yield pieces[-1]
+    yield last
+
+
+def _filled_bytes(text: str, holes: list[Any], rows: _RowTexts) -> Iterator[bytes]:
+    """`_filled`, as UTF-8: each batch encoded where it is made."""
+    batches, last = _filling(text, holes)
+    if rows.polars:
+        yield from made_in_order(lambda batch: rows.encoded(*batch), batches)
+    else:
+        yield from (rows.encoded(*batch) for batch in batches)
+    yield last.encode()
+
+
+def _filling(text: str, holes: list[Any]) -> tuple[list[Any], str]:
+    """`text`'s batches of holes to fill, as `_RowTexts.text` takes them, and the text after
+    the last: whole targets, about `_BATCH_ROWS` rows a batch, then the unassigned rows."""
+    pieces = text.split(_HOLE_TEXT)
+    unassigned = holes.pop()
+    batches = [
+        (pieces[start:end], holes[start:end], TARGET_ROWS_INDENT)
+        for start, end in pairwise([0, *_batches(holes)])
+    ]
+    batches.append(([pieces[-2]], [unassigned], 4))
+    return batches, pieces[-1]
 
 
 _HOLE_TEXT = "\x00"
@@ -272,9 +291,25 @@ class _RowTexts:
     def text(self, pieces: list[str], holes: list[Any], indent: int) -> str:
         """Each of `pieces` followed by the JSON list of its hole's rows (indices into the
         detections; their `{` at `indent` spaces), as one text. Only a last hole may be empty."""
+        parts, tail = self._parts(pieces, holes, indent)
+        if not parts:
+            return tail
+        if self.polars:
+            return joined_rows(parts, tail)
+        rows = len(parts[0])
+        return _interleaved([p if isinstance(p, list) else [p] * rows for p in parts]) + tail
+
+    def encoded(self, pieces: list[str], holes: list[Any], indent: int) -> bytes:
+        """`text`, as UTF-8 (polars' rows without a Python str between)."""
+        parts, tail = self._parts(pieces, holes, indent) if self.polars else ([], "")
+        return encoded_rows(parts, tail) if parts else self.text(pieces, holes, indent).encode()
+
+    def _parts(self, pieces: list[str], holes: list[Any], indent: int) -> tuple[list[Any], str]:
+        """`text`'s rows as parts for `joined_rows`, and the text after them; no parts, and
+        the whole text, when there are no rows."""
         index = np.concatenate(holes)
         if index.size == 0:
-            return "".join(p + "[]" for p in pieces)
+            return [], "".join(p + "[]" for p in pieces)
         layout = self.layout
         inner = indent + 2
         opening = layout.line(indent) + "{" + layout.key(inner, "detection_id") + self.texts.quote
@@ -284,16 +319,8 @@ class _RowTexts:
         for k, (piece, members) in enumerate(zip(pieces, holes, strict=True)):
             lead[start] = (close_list if k else "") + piece + "[" + opening
             start += members.size
-        parts: list[Any] = [
-            lead,
-            *self.texts.columns(index, inner),
-            *self._extra(index, inner, close_row),
-        ]
-        if self.polars:
-            return joined_rows(parts, close_list)
-        return _interleaved([p if isinstance(p, list) else [p] * index.size for p in parts]) + (
-            close_list
-        )
+        parts = [lead, *self.texts.columns(index, inner), *self._extra(index, inner, close_row)]
+        return parts, close_list
 
     def _extra(self, index: Any, inner: int, close_row: str) -> list[Any]:
         """What follows a row's timestamp: its features, when the input has them, its link's
