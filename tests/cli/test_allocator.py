@@ -4,6 +4,7 @@ import json
 import platform
 import subprocess
 import sys
+import threading
 
 from roadlink.association.associators import ASSOCIATORS
 from roadlink.association.csvio import READER_IMPORTS
@@ -95,3 +96,21 @@ def test_what_assignment_imports_on_first_use_is_what_it_imports():
     )
     names, before, after = json.loads(done.stdout)
     assert names and before == [] and after == names
+
+
+def test_a_module_that_fails_to_import_beside_the_read_is_left_to_its_user(monkeypatch):
+    """The import thread stops quietly: the code that needs the module imports it itself, and
+    its error then names what is missing where it matters."""
+    tried = []
+
+    def missing(name):
+        tried.append(name)
+        raise ImportError(f"No module named {name!r}")
+
+    monkeypatch.setattr(analysis.importlib, "import_module", missing)
+    failures = []
+    monkeypatch.setattr(threading, "excepthook", failures.append)
+    thread = analysis._importing(("nothing_here", "nor_here"))
+    assert thread is not None
+    thread.join()
+    assert tried == ["nothing_here"] and failures == []

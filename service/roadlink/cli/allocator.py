@@ -16,7 +16,7 @@ memory back to its host (Firecracker's free page reporting, as on the machines t
 measured on), the first touch of each page of a large heap costs the host a fault too, and a
 fresh process's association at 10^6 detections spent 0.9 s of system time on them (a process
 that has associated before: none). `fault_in_heap_for` touches that heap on a thread while the
-file is read, so the association starts on memory that is already there (0.1 s of system time).
+file is read, so the association starts on memory that is already there (0.2 s of system time).
 
 Only the one-shot commands (`associate`, `locate`) set it: a long-running server would keep
 what a large job freed.

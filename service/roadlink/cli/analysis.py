@@ -92,26 +92,10 @@ def associate_file(
     `meanwhile(detections)` runs on a thread while they are associated: what the command does
     next that does not need the grouping, on the core the association leaves idle."""
     keep_freed_memory()  # the command associates once and ends (see `allocator`)
-    cls = ASSOCIATORS.get(associator)  # an unknown one: `associate` names the known ones
-    heap = 0 if cls is None else cls.heap_per_detection
-    faulting_in = None if str(file) == "-" else fault_in_heap_for(file, heap)
-    # The reader's imports first: the read waits for them alone, then parses (without the
-    # GIL) while the associator's are imported (read and imports 0.55-0.89 -> 0.48-0.61 s at
-    # 10^6; importing both at once kept polars' import waiting on the GIL).
-    importing = _importing((*READER_IMPORTS, *(() if cls is None else cls.imports_on_first_use)))
-    try:
-        # Bytes from stdin: the fast path (polars) reads them as they are, without a decoded
-        # copy; a file is mapped, and polars reads it itself.
-        detections = read_detections_csv(sys.stdin.buffer.read() if str(file) == "-" else file)
-    except OSError as exc:
-        raise fail(f"cannot read {file}: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise fail(f"{file}: not UTF-8 text: byte {exc.start + 1} ({exc.reason})") from None
-    except DetectionError as exc:
-        raise fail(f"{file}: {exc}") from None
-    for thread in (faulting_in, importing):
-        if thread is not None:
-            thread.join()
+    preparing = _prepare_beside_the_read(file, associator)
+    detections = _read(file)
+    for thread in preparing:
+        thread.join()
     try:
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="roadlink-meanwhile") as pool:
             beside = None if meanwhile is None else pool.submit(meanwhile, detections)
@@ -125,14 +109,50 @@ def associate_file(
         release_freed_memory()
 
 
+def _read(file: Path) -> Detections:
+    try:
+        # Bytes from stdin: the fast path (polars) reads them as they are, without a decoded
+        # copy; a file is mapped, and polars reads it itself.
+        return read_detections_csv(sys.stdin.buffer.read() if str(file) == "-" else file)
+    except OSError as exc:
+        raise fail(f"cannot read {file}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise fail(f"{file}: not UTF-8 text: byte {exc.start + 1} ({exc.reason})") from None
+    except DetectionError as exc:
+        raise fail(f"{file}: {exc}") from None
+
+
+def _prepare_beside_the_read(file: Path, associator: str) -> list[threading.Thread]:
+    """Start what the association will need and the read does not wait for, on threads: the
+    heap it will take (`allocator.fault_in_heap_for`) and its imports. The reader's imports
+    come first, so the read waits for them alone, then parses (without the GIL) while the
+    associator's are imported (read and imports 0.55-0.89 -> 0.48-0.61 s at 10^6; importing
+    both at once kept polars' import waiting on the GIL)."""
+    cls = ASSOCIATORS.get(associator)  # an unknown one: `associate` names the known ones
+    heap = 0 if cls is None else cls.heap_per_detection
+    imports = (*READER_IMPORTS, *(() if cls is None else cls.imports_on_first_use))
+    threads = [
+        None if str(file) == "-" else fault_in_heap_for(file, heap),
+        _importing(imports),
+    ]
+    return [thread for thread in threads if thread is not None]
+
+
 def _importing(modules: tuple[str, ...]) -> threading.Thread | None:
-    """Start importing `modules` in order on a thread (the read goes on beside it; a module
-    it needs that the thread is importing, it waits for); None for none."""
+    """Start importing `modules` in order on a thread (a module the read needs that the thread
+    is importing, the read waits for); None for none. A module that fails to import is left
+    to the code that needs it, whose own import then says why."""
+
+    def import_all() -> None:
+        try:
+            for name in modules:
+                importlib.import_module(name)
+        except ImportError:
+            return
+
     if not modules:
         return None
-    thread = threading.Thread(
-        target=lambda: [importlib.import_module(m) for m in modules], name="roadlink-imports"
-    )
+    thread = threading.Thread(target=import_all, name="roadlink-imports")
     thread.start()
     return thread
 
