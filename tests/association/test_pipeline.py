@@ -1,6 +1,8 @@
 """`associate` (`association/pipeline.py`): the named associator over the detections, its
 parameters checked, the grouping scored."""
 
+import json
+
 import pytest
 
 from roadlink.association import Detections, associate
@@ -77,6 +79,32 @@ def test_the_deferred_imports_are_what_the_core_imports_on_first_use():
         "print(sorted({m.split('.')[1] for m in after - before if m.count('.') >= 1}))\n"
     )
     assert printed_by(script) == "[]"
+
+
+@pytest.mark.parametrize(
+    ("name", "traffic"),
+    [
+        ("assignment", "preset('congested', n_targets=500)"),  # its sparse solver's size
+        ("kmeans", "preset('large')"),
+        ("svm-linear", "preset('large')"),
+    ],
+)
+def test_what_an_associator_imports_on_first_use_is_what_it_imports(name, traffic):
+    """The modules an associator names (which the CLI imports beside its read, and the
+    deferred imports gather) are imported by its first association, in a process that had not
+    imported them: the list does not go stale."""
+    script = (
+        "import json, sys\n"
+        "from roadlink.association import associate\n"
+        "from roadlink.association.associators import ASSOCIATORS\n"
+        "from roadlink.simulation import preset, simulate\n"
+        f"names = ASSOCIATORS[{name!r}].imports_on_first_use\n"
+        "before = [n for n in names if n in sys.modules]\n"
+        f"associate(simulate({traffic}, seed=1).detections, {name!r}, {{}})\n"
+        "print(json.dumps([names, before, [n for n in names if n in sys.modules]]))\n"
+    )
+    names, before, after = json.loads(printed_by(script))
+    assert names and before == [] and after == names
 
 
 def test_the_cli_imports_only_what_every_command_needs():

@@ -71,11 +71,13 @@ def test_the_cli_json_is_json_dumps_byte_for_byte(result):
 @pytest.mark.parametrize("result", results())
 def test_the_cli_json_from_row_texts_made_beforehand_is_json_dumps_byte_for_byte(result):
     """The CLI makes the rows' text that needs no grouping while it associates: the same
-    bytes; texts made of other detections are not taken."""
+    bytes; texts made of other detections, or for the compact text, are not taken."""
     expected = json.dumps(result.to_dict(), indent=2) + "\n"
     assert result_json_text(result, json_detection_texts(result.detections)) == expected
     other = dataclasses.replace(result.detections)
     assert result_json_text(result, json_detection_texts(other)) == expected
+    compact = result_text.DetectionTexts(result.detections, result_text._COMPACT).prepared()
+    assert result_json_text(result, compact) == expected
 
 
 def test_the_rows_made_beforehand_are_gathered_not_made_again(monkeypatch, rows_made_by):

@@ -1,6 +1,5 @@
 """The one-shot commands set glibc's allocator to keep freed memory for their next arrays."""
 
-import json
 import platform
 import subprocess
 import sys
@@ -74,28 +73,6 @@ def test_associating_a_file_faults_in_its_heap_and_imports_beside_the_read(monke
     assert started == [(path, assignment.heap_per_detection)]
     assert imported == [*READER_IMPORTS, *assignment.imports_on_first_use]
     assert analysis._importing(()) is None
-
-
-def test_what_assignment_imports_on_first_use_is_what_it_imports():
-    """The modules `assignment` names are imported by its first association of a few
-    thousand detections, in a process that had not imported them (the list does not go
-    stale)."""
-    script = (
-        "import json, sys\n"
-        "from roadlink.association import associate\n"
-        "from roadlink.association.associators import ASSOCIATORS\n"
-        "from roadlink.simulation import preset, simulate\n"
-        "names = ASSOCIATORS['assignment'].imports_on_first_use\n"
-        "before = [n for n in names if n in sys.modules]\n"
-        "detections = simulate(preset('congested', n_targets=500), seed=1).detections\n"
-        "associate(detections, 'assignment', {})\n"
-        "print(json.dumps([names, before, [n for n in names if n in sys.modules]]))\n"
-    )
-    done = subprocess.run(
-        [sys.executable, "-c", script], capture_output=True, text=True, check=True
-    )
-    names, before, after = json.loads(done.stdout)
-    assert names and before == [] and after == names
 
 
 def test_a_module_that_fails_to_import_beside_the_read_is_left_to_its_user(monkeypatch):

@@ -9,6 +9,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from roadlink.association.associators import (
+    ASSOCIATORS,
     DEFAULT_ASSOCIATOR,
     AssociationError,
     AssociatorParams,
@@ -18,17 +19,18 @@ from roadlink.association.associators import (
 from roadlink.association.detections import Detections
 from roadlink.association.result import AssociationResult, build_result
 
-DEFERRED_IMPORTS = (
-    "scipy.interpolate",
-    "scipy.optimize",
-    "scipy.sparse.csgraph",
-    "scipy.special",
-    "sklearn.cluster",
-    "sklearn.model_selection",
-    "sklearn.multiclass",
-    "sklearn.pipeline",
-    "sklearn.preprocessing",
-    "sklearn.svm",
+# What the core may import beyond what every associator names (`imports_on_first_use`: what
+# its first association of some size imports): the localisation's splines, and `assignment`'s
+# dense solver, which only small blocks of links take.
+_ALSO_DEFERRED = ("scipy.interpolate", "scipy.optimize")
+
+DEFERRED_IMPORTS = tuple(
+    sorted(
+        {
+            *_ALSO_DEFERRED,
+            *(name for cls in ASSOCIATORS.values() for name in cls.imports_on_first_use),
+        }
+    )
 )
 """What the core imports on first use, not with the core (scikit-learn: seconds to import;
 scipy's solvers and splines: about 0.4 s; which the CLI need not pay for a command that does not

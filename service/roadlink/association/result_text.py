@@ -64,7 +64,7 @@ def write_result_json(
     """
     holes: list[Any] = []
     document = result.document(_holes_into(holes))
-    if texts is None or texts.detections is not result.detections:
+    if texts is None or texts.detections is not result.detections or texts.layout != _INDENTED:
         texts = DetectionTexts(result.detections, _INDENTED)
     rows = _RowTexts(result, texts)
     try:

@@ -69,11 +69,13 @@ def fault_in_heap_for(path: Path, bytes_per_detection: int) -> threading.Thread 
     keeps it once freed); join the thread before associating. None when there is nothing
     worth doing: not glibc, too little heap (or not a regular file: its size says nothing)."""
     malloc, memset, free = _glibc("malloc"), _glibc("memset"), _glibc("free")
+    if malloc is None or bytes_per_detection <= 0:
+        return None
     try:
         heap = bytes_per_detection * _estimated_rows(path)
     except OSError:
         return None
-    if malloc is None or heap < MIN_HEAP_TO_FAULT_IN:
+    if heap < MIN_HEAP_TO_FAULT_IN:
         return None
     malloc.restype, malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
     memset.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_size_t]

@@ -38,7 +38,8 @@ class Associator(ABC):
     imports_on_first_use: ClassVar[tuple[str, ...]] = ()
     """Modules `group` imports when it first runs, kept out of `import roadlink` (which every
     command pays for): a one-shot command imports them on a thread while it reads its file,
-    beside the parser, which lets go of the GIL."""
+    beside the parser, which lets go of the GIL; a worker imports every associator's up front
+    (`pipeline.DEFERRED_IMPORTS`)."""
     heap_per_detection: ClassVar[int] = 0
     """About how many bytes of heap `group` allocates per detection beyond the detections, at
     scale, as measured (0: not measured): what a one-shot command touches beforehand, on a

@@ -91,6 +91,7 @@ def kmeanspp_centres(points: FloatArray, k: int, rng: np.random.Generator) -> Fl
 
 class KMeansAssociator(Associator):
     name: ClassVar[str] = "kmeans"
+    imports_on_first_use: ClassVar[tuple[str, ...]] = ("sklearn.cluster",)
     description: ClassVar[str] = (
         "The paper's K-means: Lloyd's algorithm from k data points chosen at random, in "
         "(velocity, back-projected time) space, with use_length the measured length too. Needs "

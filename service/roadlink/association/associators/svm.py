@@ -54,6 +54,13 @@ class SVMParams(AssociatorParams):
 
 class _OneVsAllSVM(Associator):
     needs_labels: ClassVar[bool] = True
+    imports_on_first_use: ClassVar[tuple[str, ...]] = (
+        "sklearn.model_selection",
+        "sklearn.multiclass",
+        "sklearn.pipeline",
+        "sklearn.preprocessing",
+        "sklearn.svm",
+    )
     Params = SVMParams
     params: SVMParams
     kernel: ClassVar[dict[str, object]]
