@@ -51,6 +51,15 @@ def test_unsupervised_associators_never_see_the_labels():
     assert labelled.params == unlabelled.params
 
 
+def test_an_unscored_result_is_scored_later_to_the_same_metrics():
+    d = paper_data()
+    unscored = associate(d, "assignment", scored=False)
+    assert unscored.metrics is None
+    scored = unscored.scored()
+    assert scored.metrics == associate(d, "assignment").metrics is not None
+    assert scored.groups is unscored.groups and scored.detections is unscored.detections
+
+
 def printed_by(script: str) -> str:
     """What a fresh Python process running `script` prints (it must succeed)."""
     import subprocess

@@ -3,6 +3,7 @@ indent=2)` for the CLI's --json, `orjson.dumps(document)` for the service's stor
 matrix: `test_matrix_text`)."""
 
 import dataclasses
+import io
 import json
 
 import numpy as np
@@ -78,6 +79,28 @@ def test_the_cli_json_from_row_texts_made_beforehand_is_json_dumps_byte_for_byte
     assert result_json_text(result, json_detection_texts(other)) == expected
     compact = result_text.DetectionTexts(result.detections, result_text._COMPACT).prepared()
     assert result_json_text(result, compact) == expected
+
+
+@pytest.mark.parametrize("result", results())
+def test_metrics_given_later_are_written_after_the_rows_as_json_dumps_wrote_them(result):
+    """An unscored result written with its metrics to come (the CLI scores it meanwhile):
+    the same bytes, and the metrics asked for only once every row is written (or before
+    anything, where the plain encoder writes the document: text orjson spells otherwise)."""
+    expected = json.dumps(result.to_dict(), indent=2) + "\n"
+    unscored = dataclasses.replace(result, metrics=None)
+    out = io.BytesIO()
+    written_when_asked = []
+
+    def metrics():
+        written_when_asked.append(out.getvalue().decode())
+        return result.metrics
+
+    result_text.write_result_json(unscored, out, metrics=metrics)
+    assert out.getvalue().decode() == expected
+    (before,) = written_when_asked
+    assert expected.startswith(before)
+    assert before == "" or before.count('"detection_id"') == len(result.detections)
+    assert before or not json.dumps(result.params, ensure_ascii=False).isascii()
 
 
 def test_the_rows_made_beforehand_are_gathered_not_made_again(monkeypatch, rows_made_by):

@@ -195,6 +195,30 @@ def test_the_json_rows_are_made_while_the_file_is_associated(small_csv, monkeypa
     assert len(made_on) == 1 and made_on[0].startswith("roadlink-meanwhile")
 
 
+def test_the_json_is_scored_while_its_rows_are_written(small_csv, monkeypatch):
+    """`--json` scores the result on a thread while the rows are written (the metrics come
+    last); the other outputs are scored at once."""
+    from roadlink.association.result import AssociationResult
+    from roadlink.cli import analysis
+
+    scored_on = []
+    scoring = AssociationResult.scored
+
+    def recorded(self):
+        scored_on.append(threading.current_thread().name)
+        return scoring(self)
+
+    monkeypatch.setattr(AssociationResult, "scored", recorded)
+    result = runner.invoke(app, ["associate", str(small_csv), "--json"])
+    assert result.exit_code == 0, result.output
+    expected = associate(read_detections_csv(small_csv), "assignment").to_dict()
+    assert json.loads(result.stdout)["metrics"] == expected["metrics"] is not None
+    assert len(scored_on) == 1 and scored_on[0].startswith("roadlink-scoring")
+    summary = runner.invoke(app, ["associate", str(small_csv)])
+    assert "accuracy=" in summary.stdout and len(scored_on) == 1
+    assert analysis.associate_file(small_csv, "assignment", []).metrics is not None
+
+
 def test_work_beside_the_association_sees_the_detections_and_its_errors_surface(small_csv):
     from roadlink.cli import analysis
 

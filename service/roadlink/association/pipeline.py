@@ -73,8 +73,12 @@ def associate(
     associator: str = DEFAULT_ASSOCIATOR,
     params: Mapping[str, Any] | None = None,
     progress: Progress | None = None,
+    *,
+    scored: bool = True,
 ) -> AssociationResult:
-    """Group `detections` into targets with the named associator, and score the grouping.
+    """Group `detections` into targets with the named associator, and score the grouping
+    (unless not `scored`: a caller with something else to do meanwhile calls
+    `AssociationResult.scored` itself).
 
     Unsupervised associators never see the labels, so scores cannot leak into the grouping.
     """
@@ -97,4 +101,5 @@ def associate(
         checked.model_dump(),
         None if effective is None else effective.model_dump(),
         grouper.link_confidence,
+        scored=scored,
     )

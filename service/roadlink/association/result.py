@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -41,6 +41,10 @@ class AssociationResult:
     @property
     def n_targets(self) -> int:
         return int(self.groups.max(initial=-1)) + 1
+
+    def scored(self) -> AssociationResult:
+        """This result with its metrics: what `build_result(..., scored=False)` left for later."""
+        return replace(self, metrics=score_grouping(self.groups, _labels(self.detections)))
 
     def target_members(self) -> list[IntArray]:
         """Detection indices of each target, ordered by position (then time)."""
@@ -226,8 +230,11 @@ def build_result(
     params: dict[str, Any],
     effective_params: dict[str, Any] | None = None,
     link_confidence: FloatArray | None = None,
+    *,
+    scored: bool = True,
 ) -> AssociationResult:
-    """Renumber groups by the time each target passes the reference sensor, and score them.
+    """Renumber groups by the time each target passes the reference sensor, and score them
+    (unless not `scored`: then the metrics are None until `AssociationResult.scored`).
 
     A target's passing time is the back-projected time of its detection nearest the reference
     sensor (its own passing time, when it was seen there).
@@ -255,7 +262,7 @@ def build_result(
         params=params,
         detections=detections,
         groups=renumbered,
-        metrics=score_grouping(renumbered, _labels(detections)),
+        metrics=score_grouping(renumbered, _labels(detections)) if scored else None,
         effective_params=effective_params,
         link_confidence=link_confidence,
     )

@@ -17,7 +17,7 @@ import json
 import math
 import re
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import pairwise
 from typing import TYPE_CHECKING, Any, BinaryIO
 
@@ -38,6 +38,7 @@ from roadlink.association.text_columns import (
 if TYPE_CHECKING:
     from roadlink.association.detections import Detections
     from roadlink.association.result import AssociationResult
+    from roadlink.association.scores import Metrics
 
 
 def result_json_text(result: AssociationResult, texts: DetectionTexts | None = None) -> str:
@@ -48,12 +49,17 @@ def result_json_text(result: AssociationResult, texts: DetectionTexts | None = N
 
 
 def write_result_json(
-    result: AssociationResult, stream: BinaryIO, texts: DetectionTexts | None = None
+    result: AssociationResult,
+    stream: BinaryIO,
+    texts: DetectionTexts | None = None,
+    metrics: Callable[[], Metrics | None] | None = None,
 ) -> None:
     """Write `json.dumps(result.to_dict(), indent=2) + "\\n"` to `stream`, as UTF-8 (ASCII: the
     plain encoder escapes the rest), a few targets at a time, without the row objects.
     `texts`, when given, are `json_detection_texts` of the result's detections (made while
-    they were associated).
+    they were associated). `metrics`, when given, gives the metrics in place of the result's,
+    and is called only once the rows are written: the metrics come last in the document, so
+    an unscored result (`build_result(..., scored=False)`) can be scored meanwhile.
 
     orjson writes the document with a hole for each target's detections and for the unassigned
     ones; their text is written into the holes from the columns (`_filled`), a batch of
@@ -75,12 +81,26 @@ def write_result_json(
                 document[name] = _respelt(document[name])
         _respell_targets(document["targets"])
     except _Disagrees:
+        if metrics is not None:
+            result = replace(result, metrics=metrics())
         stream.write((json.dumps(result.to_dict(), indent=2) + "\n").encode())
         return
+    if metrics is not None:
+        document["metrics"] = _METRICS_HOLE
     text = orjson.dumps(document, option=orjson.OPT_INDENT_2).decode()
+    text, _, end = text.rpartition(_METRICS_HOLE_TEXT) if metrics is not None else (text, "", "")
     for chunk in _filled_bytes(text, holes, rows):
         stream.write(chunk)
+    if metrics is not None:
+        stream.write((_metrics_text(metrics()) + end).encode())
     stream.write(b"\n")
+
+
+def _metrics_text(metrics: Metrics | None) -> str:
+    """The document's `metrics` value as `json.dumps(indent=2)` writes it in the document (a
+    key of the top level): the plain encoder's own text, six numbers at most."""
+    text = json.dumps({"metrics": None if metrics is None else metrics.to_dict()}, indent=2)
+    return text[len('{\n  "metrics": ') : -len("\n}")]
 
 
 def json_detection_texts(detections: Detections) -> DetectionTexts:
@@ -151,6 +171,9 @@ def _filling(text: str, holes: list[Any]) -> tuple[list[Any], str]:
 
 _HOLE_TEXT = "\x00"
 _HOLE = orjson.Fragment(_HOLE_TEXT.encode())
+# The metrics' place, when they are written last (`write_result_json`'s `metrics`).
+_METRICS_HOLE_TEXT = "\x01"
+_METRICS_HOLE = orjson.Fragment(_METRICS_HOLE_TEXT.encode())
 _BATCH_ROWS = 1 << 16
 
 
