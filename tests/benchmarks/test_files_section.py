@@ -1,6 +1,8 @@
 """The files section's machinery on a tiny file: every table has its row, the CLI runs, and the
 memory child reports. Never asserts speed: benchmarks/ reports timings."""
 
+from pathlib import Path
+
 import pytest
 
 from benchmarks import datasets
@@ -20,3 +22,13 @@ def test_the_files_section_reads_writes_and_runs_the_cli_beside_its_references(m
     assert len(read["rows"]) == 1 and len(cli["rows"]) == 1
     assert len(write["rows"]) == 4  # CLI JSON, stored JSON, its former writer, matrix
     assert section["settings"] == {"detections": 1_000, "repeats": 2}
+
+
+def test_the_cli_is_timed_on_roadlinks_compiled_bytecode():
+    """As installed (pip compiles a wheel's modules), whatever PYTHONDONTWRITEBYTECODE says."""
+    import importlib.util
+
+    package = files.compiled_roadlink()
+    source = package / "cli" / "analysis.py"
+    cached = Path(importlib.util.cache_from_source(str(source)))
+    assert cached.is_file() and cached.stat().st_mtime >= source.stat().st_mtime
