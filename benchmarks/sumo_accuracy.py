@@ -124,9 +124,12 @@ def timed_accuracy(
     """The associator's metrics and seconds, in a child process killed after `timeout` seconds.
 
     libsvm has no time limit, and on some traffic the linear SVM does not converge for many
-    minutes; such a run is recorded as timed out (None) instead of stalling the table.
+    minutes; such a run is recorded as timed out (None) instead of stalling the table. The child
+    is spawned, not forked: detections read by the CSV reader (`--data`) hold polars columns, and
+    a child forked from a process whose polars thread pool is running hangs in it (every case
+    of a `--data` run timed out).
     """
-    with multiprocessing.get_context("fork").Pool(1) as pool:
+    with multiprocessing.get_context("spawn").Pool(1) as pool:
         start = time.perf_counter()
         pending = pool.apply_async(_metrics, (detections, associator))
         try:
