@@ -127,7 +127,7 @@ def test_segments_of_a_handful_of_targets_at_once_give_each_its_own_prior(n):
         samples[-1] = samples[-1][:0] if seed in (4, 9) else samples[-1]
         together = few_targets_priors(s, samples, sensors + 1)
         one_by_one = [
-            travel_time_prior(s, sample, p + 1) if sample.size else 0.0
+            travel_time_prior(s, sample, p + 1, AssignmentParams()) if sample.size else 0.0
             for p, sample in zip(sensors.tolist(), samples, strict=True)
         ]
         np.testing.assert_array_equal(together, one_by_one)

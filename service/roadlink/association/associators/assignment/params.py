@@ -36,6 +36,11 @@ PRIOR_AGREEMENT = 0.5
 # A pile-up of pairs away from the kinematic prediction is believed only when it holds this many
 # standard deviations (Poisson) more pairs than the kinematic prediction's own bin.
 PRIOR_SIGNIFICANCE = 5.0
+# A weaker bump's bias (this many standard deviations, in the selection that shows it most, and
+# PRIOR_WEAK_SUPPORT in the other, in the same place) is kept where matching the detections under
+# it confirms it (weak_bias.py).
+PRIOR_WEAK_SIGNIFICANCE = 2.0
+PRIOR_WEAK_SUPPORT = 1.0
 # Fewer sampled detections than this cannot reach that significance (a handful of targets): their
 # mode is taken as it is, as long as it stands above the background at all.
 PRIOR_TEST_SAMPLE = 40

@@ -23,6 +23,8 @@ from roadlink.association.associators.assignment.params import (
     PRIOR_SMOOTHING,
     PRIOR_TAILS,
     PRIOR_TEST_SAMPLE,
+    PRIOR_WEAK_SIGNIFICANCE,
+    PRIOR_WEAK_SUPPORT,
     AssignmentParams,
 )
 from roadlink.association.associators.assignment.robust import median, run_medians, spread
@@ -31,6 +33,7 @@ from roadlink.association.associators.assignment.sensors import (
     Sensors,
     travel_time,
 )
+from roadlink.association.associators.assignment.weak_bias import clock_shifts, confirmed_bias
 from roadlink.association.detections import FloatArray, IntArray
 
 BoolArray = npt.NDArray[np.bool_]
@@ -65,11 +68,18 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
     samples = [
         s.members(p)[:: max(1, s.members(p).size // PRIOR_SAMPLE)] for p in range(n_sensors - 1)
     ]
+    weak: dict[int, float] = {}
     for p, sample in enumerate(samples):
         if sample.size >= PRIOR_TEST_SAMPLE:
-            log_bias[p, 1] = travel_time_prior(s, sample, p + 1)
+            log_bias[p, 1], confirmed = travel_time_bumps(s, sample, p + 1, params)
+            if confirmed is not None:
+                weak[p] = confirmed
     few = [p for p, sample in enumerate(samples) if sample.size < PRIOR_TEST_SAMPLE]
     log_bias[few, 1] = few_targets_priors(s, [samples[p] for p in few], np.array(few) + 1)
+    gaps = np.diff(s.positions)
+    seconds = travel_time(gaps, medians[:-1], medians[1:])  # typical, in the data's time unit
+    for segment, bias in clock_shifts(weak, log_bias[:-1, 1], seconds).items():
+        log_bias[segment, 1] = bias
 
     # A typical target's travel time over every segment, and its kinematic prediction; every
     # segment of a span at once (the same numbers as segment by segment: the sums add the
@@ -101,34 +111,50 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
     )
 
 
-def travel_time_prior(s: Sensors, a: IntArray, q: int) -> float:
+def travel_time_prior(s: Sensors, a: IntArray, q: int, params: AssignmentParams) -> float:
     """A segment's log bias before anything is linked: the most common log(observed / kinematic
     travel time) of the pairs from detections a to sensor q, or 0, the kinematic prediction,
     unless the data clearly say otherwise."""
+    return travel_time_bumps(s, a, q, params)[0]
+
+
+def travel_time_bumps(
+    s: Sensors, a: IntArray, q: int, params: AssignmentParams
+) -> tuple[float, float | None]:
+    """`travel_time_prior`, and a bias that the pairs show less clearly but matching the
+    detections confirms (`weak_bias.confirmed_bias`), where there is one: `segment_prior`
+    keeps it only where a neighbouring segment mirrors it (`weak_bias.clock_shifts`)."""
     pairs = CandidatePairs.within_reach(s, a, q)
     if pairs is None:
-        return 0.0
+        return 0.0, None
     every = np.ones(pairs.pa.size, dtype=bool)
     if a.size < PRIOR_TEST_SAMPLE:
         # A handful of targets: no background to thin, no power for a test, and too few pairs
         # to move (`excess`): the background is a uniform arrival rate.
         mode = pairs.excess_over_uniform(every, pairs.log_ratios(every)[0])
-        return mode.centre() if mode.excess.max() > 0 else 0.0
+        return (mode.centre() if mode.excess.max() > 0 else 0.0), None
     # A driver often keeps its place among the speeds around it, so the pairs whose speeds,
     # relative to their sensors' typical speeds, agree hold most true pairs and few unrelated
     # ones; but not where every driver brakes to a speed of its own: both selections are tried.
     change = s.relative_speed[pairs.pb] - s.relative_speed[pairs.pa]
     relative_spread = spread(s.relative_speed[s.members(q)])
     agree = np.abs(change) <= PRIOR_AGREEMENT * relative_spread
-    best, best_significance = 0.0, -np.inf
-    for keep in (agree, every):
-        centre, significance = pairs.bias(keep)
-        if significance > best_significance:
-            best, best_significance = centre, significance
+    bumps = [pairs.bias(keep) for keep in (agree, every)]
+    best, best_significance = max(bumps, key=lambda bump: bump[1])
     # The kinematic prediction stands unless another bias explains clearly more pairs: the
     # background is rough (arrivals bunch in queues, speeds mix, platoons repeat at one
     # headway), so a bump that is merely above it is no evidence of a bias.
-    return best if best_significance >= PRIOR_SIGNIFICANCE else 0.0
+    if best_significance >= PRIOR_SIGNIFICANCE:
+        return best, None
+    # A weaker bump counts where both selections show it in one place (a chance bump of the
+    # speed-agreeing pairs is seldom one of all pairs too) and matching confirms it.
+    together = all(
+        abs(centre - best) <= PRIOR_PEAK_BINS * PRIOR_BIN and significance >= PRIOR_WEAK_SUPPORT
+        for centre, significance in bumps
+    )
+    if best_significance < PRIOR_WEAK_SIGNIFICANCE or not together:
+        return 0.0, None
+    return 0.0, confirmed_bias(pairs, best, params)
 
 
 def few_targets_priors(s: Sensors, samples: list[IntArray], q: IntArray) -> FloatArray:
