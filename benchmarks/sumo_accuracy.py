@@ -29,13 +29,21 @@ each case: with the features, and on the same detections without them (column `.
 `--lanes-alone` adds a third score, on the same detections reporting their lane alone (column
 `... -l`: single loops know their lane and measure no length). Export feature cases to a
 directory of their own: their names are the scenarios'.
+
+`--clock` sets the sensors' clocks off before every associator sees a case (`with_clock`):
+`late2` puts the middle sensor's clock 2 s late, `early2` early, and `spread1` offsets every
+sensor's clock by a normal draw of 1 s (std; drawn from the seed, the same for every
+associator); any number of seconds may follow the word. Field sensors that no GPS or NTP keeps
+in step drift by seconds.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import multiprocessing
+import re
 import time
 from pathlib import Path
 
@@ -103,6 +111,36 @@ def load_case(
         export.mkdir(parents=True, exist_ok=True)
         case_file(export, scenario, seed).write_text(write_detections_csv(detections))
     return detections
+
+
+CLOCK = re.compile(r"(late|early|spread)(\d+(?:\.\d+)?)")
+
+
+def with_clock(detections: Detections, clock: str | None, seed: int) -> Detections:
+    """The case as sensors whose clocks are off would report it (`--clock`): `lateS` / `earlyS`
+    shift the middle sensor's timestamps by S seconds, `spreadS` every sensor's by a normal
+    draw of S seconds (std) from `seed`; None leaves the case as it is."""
+    if clock is None:
+        return detections
+    match = CLOCK.fullmatch(clock)
+    if match is None:
+        raise ValueError(f"--clock: expected lateS, earlyS or spreadS (S seconds), got {clock!r}")
+    kind, seconds = match.group(1), float(match.group(2))
+    positions = np.unique(detections.position)
+    if kind == "spread":
+        offsets = np.random.default_rng(seed).normal(0.0, seconds, positions.size)
+    else:
+        offsets = np.zeros(positions.size)
+        offsets[positions.size // 2] = seconds if kind == "late" else -seconds
+    shifted = detections.timestamp + offsets[np.searchsorted(positions, detections.position)]
+    return dataclasses.replace(detections, timestamp=shifted)
+
+
+def clock_option(value: str) -> str:
+    """`--clock`'s value, checked before any case is simulated."""
+    if CLOCK.fullmatch(value) is None:
+        raise argparse.ArgumentTypeError(f"expected lateS, earlyS or spreadS (S seconds): {value}")
+    return value
 
 
 # The column title's suffix for the features a case reports (`--features`, `--lanes-alone`).
@@ -202,6 +240,12 @@ def main() -> None:
         action="store_true",
         help="With --features, also score the cases with their lane alone (column '-l').",
     )
+    parser.add_argument(
+        "--clock",
+        type=clock_option,
+        help="Sensors' clocks off: lateS, earlyS (the middle sensor, S seconds) or spreadS "
+        "(every sensor, S seconds std).",
+    )
     parser.add_argument("--length-noise", type=float, default=LENGTH_NOISE)
     parser.add_argument("--data", type=Path, help="Read the cases' CSVs from here (no SUMO).")
     parser.add_argument("--export", type=Path, help="Also write the simulated cases' CSVs here.")
@@ -245,6 +289,7 @@ def main() -> None:
         seconds: dict[str, list[float]] = {t: [] for t in titles}
         for seed in range(args.seeds):
             detections = load_case(scenario, seed, args.data, args.export, noise)
+            detections = with_clock(detections, args.clock, seed)
             sizes.setdefault(scenario, []).append(describe(detections))
             for (name, features), title in zip(columns, titles, strict=True):
                 case = with_reported(detections, features)
@@ -279,6 +324,7 @@ def main() -> None:
             {
                 "seeds": args.seeds,
                 "length_noise": noise,
+                "clock": args.clock,
                 "timeout_seconds": args.timeout,
                 "scenarios": {
                     name: {"description": known[name].description, "cases": sizes[name]}

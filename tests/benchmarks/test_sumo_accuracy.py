@@ -60,3 +60,22 @@ def test_a_case_is_scored_as_detectors_reporting_all_none_or_the_lane_would_see_
     assert bench.with_reported(d, "none").features == ()
     assert bench.with_reported(d, "lane").features == ("lane",)
     assert set(bench.FEATURE_SUFFIX) == {"all", "none", "lane"}
+
+
+def test_a_late_or_early_clock_shifts_the_middle_sensor_alone_and_a_spread_every_sensor():
+    d = Detections.from_columns(
+        np.repeat([0.0, 100.0, 200.0, 300.0, 400.0], 2), np.full(10, 20.0), np.arange(10.0)
+    )
+    late = bench.with_clock(d, "late2", seed=0)
+    np.testing.assert_array_equal(late.timestamp - d.timestamp, np.where(d.position == 200, 2, 0))
+    early = bench.with_clock(d, "early0.5", seed=0)
+    middle = np.where(d.position == 200, -0.5, 0)
+    np.testing.assert_array_equal(early.timestamp - d.timestamp, middle)
+    spread = bench.with_clock(d, "spread1", seed=3).timestamp - d.timestamp
+    assert np.unique(spread.round(9)).size == 5  # one offset a sensor, alike for its detections
+    np.testing.assert_allclose(spread[::2], spread[1::2])
+    again = bench.with_clock(d, "spread1", seed=3).timestamp - d.timestamp
+    np.testing.assert_array_equal(spread, again)
+    assert bench.with_clock(d, None, seed=0) is d
+    with pytest.raises(ValueError, match="lateS"):
+        bench.with_clock(d, "slow2", seed=0)
