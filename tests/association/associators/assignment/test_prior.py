@@ -16,7 +16,7 @@ from roadlink.association.associators.assignment.prior import (
     excess_centres,
     few_targets_priors,
     segment_prior,
-    travel_time_prior,
+    travel_time_bumps,
 )
 from roadlink.association.associators.assignment.sensors import KINEMATIC_SKEW, arrange
 from roadlink.association.detections import Detections
@@ -109,7 +109,7 @@ def test_bins_count_as_numpy_does_and_ignore_values_out_of_range():
 @pytest.mark.parametrize("n", [3, 10, 25, 39])
 def test_segments_of_a_handful_of_targets_at_once_give_each_its_own_prior(n):
     # `few_targets_priors` works out the small samples' modes all at once, a copy of
-    # `travel_time_prior`'s path for fewer than PRIOR_TEST_SAMPLE detections: the same numbers,
+    # `travel_time_bumps`'s path for fewer than PRIOR_TEST_SAMPLE detections: the same numbers,
     # segment by segment, whatever the sample (some slowed, some not, one sensor empty).
     rng = np.random.default_rng(n)
     noise = [  # unrelated arrivals: a mode by chance, moved by any difference in the counting
@@ -127,7 +127,7 @@ def test_segments_of_a_handful_of_targets_at_once_give_each_its_own_prior(n):
         samples[-1] = samples[-1][:0] if seed in (4, 9) else samples[-1]
         together = few_targets_priors(s, samples, sensors + 1)
         one_by_one = [
-            travel_time_prior(s, sample, p + 1, AssignmentParams()) if sample.size else 0.0
+            travel_time_bumps(s, sample, p + 1, AssignmentParams())[0] if sample.size else 0.0
             for p, sample in zip(sensors.tolist(), samples, strict=True)
         ]
         np.testing.assert_array_equal(together, one_by_one)

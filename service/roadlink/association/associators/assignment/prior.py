@@ -51,7 +51,7 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
 
     Every segment's travel-time bias is the mode of log(observed / kinematic travel time) over
     all pairs of its end sensors' detections within a broad window: the true pairs pile up at
-    the segment's bias, unrelated pairs spread thin (`travel_time_prior`). So a slow zone that
+    the segment's bias, unrelated pairs spread thin (`travel_time_bumps`). So a slow zone that
     changes speeds at a sensor shows here, before the first link is made. A link over missed
     detections (span > 1) takes the sum of its segments' typical travel times: travel times add
     up, while between distant sensors there are many more unrelated pairs per true one, and the
@@ -76,10 +76,6 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
                 weak[p] = confirmed
     few = [p for p, sample in enumerate(samples) if sample.size < PRIOR_TEST_SAMPLE]
     log_bias[few, 1] = few_targets_priors(s, [samples[p] for p in few], np.array(few) + 1)
-    gaps = np.diff(s.positions)
-    seconds = travel_time(gaps, medians[:-1], medians[1:])  # typical, in the data's time unit
-    for segment, bias in clock_shifts(weak, log_bias[:-1, 1], seconds).items():
-        log_bias[segment, 1] = bias
 
     # A typical target's travel time over every segment, and its kinematic prediction; every
     # segment of a span at once (the same numbers as segment by segment: the sums add the
@@ -88,7 +84,10 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
         p = np.arange(n_sensors - span)
         return travel_time(s.positions[p + span] - s.positions[p], medians[p], medians[p + span])
 
-    typical = np.exp(log_bias[:-1, 1]) * kinematic(1)
+    one_segment = kinematic(1)
+    for segment, bias in clock_shifts(weak, log_bias[:-1, 1], one_segment).items():
+        log_bias[segment, 1] = bias
+    typical = np.exp(log_bias[:-1, 1]) * one_segment
     total = typical
     for span in range(1, min(max_span, n_sensors - 1) + 1):
         log_ratio[: n_sensors - span, span] = np.log(medians[span:] / medians[:-span])
@@ -111,19 +110,15 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
     )
 
 
-def travel_time_prior(s: Sensors, a: IntArray, q: int, params: AssignmentParams) -> float:
-    """A segment's log bias before anything is linked: the most common log(observed / kinematic
-    travel time) of the pairs from detections a to sensor q, or 0, the kinematic prediction,
-    unless the data clearly say otherwise."""
-    return travel_time_bumps(s, a, q, params)[0]
-
-
 def travel_time_bumps(
     s: Sensors, a: IntArray, q: int, params: AssignmentParams
 ) -> tuple[float, float | None]:
-    """`travel_time_prior`, and a bias that the pairs show less clearly but matching the
-    detections confirms (`weak_bias.confirmed_bias`), where there is one: `segment_prior`
-    keeps it only where a neighbouring segment mirrors it (`weak_bias.clock_shifts`)."""
+    """A segment's log bias before anything is linked: the most common log(observed / kinematic
+    travel time) of the pairs from detections a to sensor q, or 0, the kinematic prediction,
+    unless the data clearly say otherwise; and a bias that the pairs show less clearly but
+    matching the detections confirms (`weak_bias.confirmed_bias`), where there is one:
+    `segment_prior` keeps it only where a neighbouring segment mirrors it
+    (`weak_bias.clock_shifts`)."""
     pairs = CandidatePairs.within_reach(s, a, q)
     if pairs is None:
         return 0.0, None
@@ -158,8 +153,8 @@ def travel_time_bumps(
 
 
 def few_targets_priors(s: Sensors, samples: list[IntArray], q: IntArray) -> FloatArray:
-    """`travel_time_prior(s, samples[k], q[k])` of segments whose samples hold a handful of
-    targets (fewer than PRIOR_TEST_SAMPLE), the same numbers: their candidate pairs and
+    """`travel_time_bumps(s, samples[k], q[k], params)[0]` of segments whose samples hold a
+    handful of targets (fewer than PRIOR_TEST_SAMPLE), the same numbers: their candidate pairs and
     histograms worked out for all those segments at once (a paper-size batch paid numpy's fixed
     costs segment after segment), then each segment's mode, as `excess_over_uniform` finds it
     keeping every pair."""

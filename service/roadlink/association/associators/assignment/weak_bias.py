@@ -1,7 +1,7 @@
 """A segment's prior bias that the pairs' histogram shows too weakly to stand on its own,
 checked by matching the detections under it, and kept where a sensor's clock explains it.
 
-The prior (`prior.travel_time_prior`) keeps the kinematic prediction unless another bias holds
+The prior (`prior.travel_time_bumps`) keeps the kinematic prediction unless another bias holds
 clearly more pairs than the kinematic prediction's own bin, since in a queue the highest bump is
 often chance. But where the true bias is moderate and traffic dense, that bin is full of pairs
 of a vehicle with the one ahead of or behind its true partner, and the true bump misses the
