@@ -174,3 +174,68 @@ def test_cells_alone_in_their_row_and_column_are_taken_and_the_rest_solved(seed)
     np.add.at(table, (pred, truth), 1)
     r, c = linear_sum_assignment(table, maximize=True)
     assert int(matched_counts.sum()) == int(table[r, c].sum())
+
+
+def _by_definition(pred, names):
+    """Every figure as `score_grouping`'s docstring defines it, by brute force over a small
+    grouping (the unlabelled detections dropped first)."""
+    from itertools import combinations
+
+    from scipy.optimize import linear_sum_assignment
+
+    keep = [i for i, name in enumerate(names) if name is not None]
+    pred, names = [int(pred[i]) for i in keep], [names[i] for i in keep]
+    real = sorted({t for t in names if t != "clutter"})
+    groups = sorted({g for g in pred if g >= 0})
+    table = np.zeros((len(groups), len(real)), dtype=int)
+    for g, t in zip(pred, names, strict=True):
+        if g >= 0 and t != "clutter":
+            table[groups.index(g), real.index(t)] += 1
+    r, c = linear_sum_assignment(table, maximize=True)
+    lone_clutter = sum(g < 0 and t == "clutter" for g, t in zip(pred, names, strict=True))
+    pairs = list(combinations(range(len(pred)), 2))
+    together = {(i, j) for i, j in pairs if pred[i] >= 0 and pred[i] == pred[j]}
+    same = {(i, j) for i, j in pairs if names[i] != "clutter" and names[i] == names[j]}
+    precision = len(together & same) / len(together) if together else 1.0
+    recall = len(together & same) / len(same) if same else 1.0
+    singles_pred = [g if g >= 0 else -1 - i for i, g in enumerate(pred)]
+    singles_true = [t if t != "clutter" else f"#{i}" for i, t in enumerate(names)]
+    members = {t: {i for i, n in enumerate(names) if n == t} for t in real}
+    group_members = {g: {i for i, h in enumerate(pred) if h == g} for g in groups}
+    whole = sum(any(members[t] == m for m in group_members.values()) for t in real)
+    return {
+        "accuracy": (table[r, c].sum() + lone_clutter) / len(pred),
+        "pairwise_precision": precision,
+        "pairwise_recall": recall,
+        "ari": adjusted_rand_score(singles_true, singles_pred),
+        "complete_targets": whole / len(real) if real else 1.0,
+    }
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_every_figure_is_its_definition(seed):
+    """The figures read off one contingency table and the sizes are the definitions' own, on
+    groupings with unassigned, clutter and unlabelled detections, from the object array, the
+    parser's column and `truth_of` alike."""
+    import polars as pl
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 70))
+    names = [f"T{k}" for k in rng.integers(0, int(rng.integers(1, 12)), n)]
+    names = [
+        None if r < 0.1 else ("clutter" if r < 0.2 else t)
+        for r, t in zip(rng.random(n), names, strict=True)
+    ]
+    truth = np.array([hash(t) % 9 if t else -1 for t in names])
+    pred = np.where(rng.random(n) < rng.random(), truth, rng.integers(-1, 9, n))
+    objects = np.array(names, dtype=object)
+    got = score_grouping(pred, objects)
+    if all(name is None for name in names):
+        assert got is None
+        return
+    want = _by_definition(pred, names)
+    assert got is not None
+    for name, value in want.items():
+        assert getattr(got, name) == pytest.approx(value, abs=1e-12), name
+    assert got == score_grouping(pred, pl.Series(names, dtype=pl.String))
+    assert got == score_grouping(pred, scores.truth_of(objects))

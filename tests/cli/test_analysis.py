@@ -197,23 +197,30 @@ def test_the_json_rows_are_made_while_the_file_is_associated(small_csv, monkeypa
 
 def test_the_json_is_scored_while_its_rows_are_written(small_csv, monkeypatch):
     """`--json` scores the result on a thread while the rows are written (the metrics come
-    last); the other outputs are scored at once."""
+    last), from the true labels read while the detections were associated; the other
+    outputs are scored at once."""
     from roadlink.association.result import AssociationResult
     from roadlink.cli import analysis
 
-    scored_on = []
-    scoring = AssociationResult.scored
+    scored_on, truths_read_on = [], []
+    scoring, reading = AssociationResult.scored, analysis.truth_of_detections
 
-    def recorded(self):
-        scored_on.append(threading.current_thread().name)
-        return scoring(self)
+    def recorded(self, truth=None):
+        scored_on.append((threading.current_thread().name, truth is not None))
+        return scoring(self, truth)
+
+    def read(detections):
+        truths_read_on.append(threading.current_thread().name)
+        return reading(detections)
 
     monkeypatch.setattr(AssociationResult, "scored", recorded)
+    monkeypatch.setattr(analysis, "truth_of_detections", read)
     result = runner.invoke(app, ["associate", str(small_csv), "--json"])
     assert result.exit_code == 0, result.output
     expected = associate(read_detections_csv(small_csv), "assignment").to_dict()
     assert json.loads(result.stdout)["metrics"] == expected["metrics"] is not None
-    assert len(scored_on) == 1 and scored_on[0].startswith("roadlink-scoring")
+    assert len(scored_on) == 1 and scored_on[0][0].startswith("roadlink-scoring")
+    assert scored_on[0][1] and truths_read_on[0].startswith("roadlink-meanwhile")
     summary = runner.invoke(app, ["associate", str(small_csv)])
     assert "accuracy=" in summary.stdout and len(scored_on) == 1
     assert analysis.associate_file(small_csv, "assignment", []).metrics is not None

@@ -14,7 +14,7 @@ from roadlink.association.backprojection import backproject_times
 from roadlink.association.csvio import FEATURE_COLUMNS
 from roadlink.association.detections import Detections, FloatArray, IntArray, feature_arrays
 from roadlink.association.matrix_text import matrix_csv
-from roadlink.association.scores import Metrics, score_grouping
+from roadlink.association.scores import Metrics, Truth, score_grouping, truth_of
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,9 +42,11 @@ class AssociationResult:
     def n_targets(self) -> int:
         return int(self.groups.max(initial=-1)) + 1
 
-    def scored(self) -> AssociationResult:
-        """This result with its metrics: what `build_result(..., scored=False)` left for later."""
-        return replace(self, metrics=score_grouping(self.groups, _labels(self.detections)))
+    def scored(self, truth: Truth | None = None) -> AssociationResult:
+        """This result with its metrics: what `build_result(..., scored=False)` left for later.
+        `truth`, when given, is `truth_of_detections(self.detections)`, read beforehand."""
+        known = truth_of_detections(self.detections) if truth is None else truth
+        return replace(self, metrics=score_grouping(self.groups, known))
 
     def target_members(self) -> list[IntArray]:
         """Detection indices of each target, ordered by position (then time)."""
@@ -314,6 +316,12 @@ def _measurement_rows(d: Detections) -> list[dict[str, Any]]:
             strict=True,
         )
     ]
+
+
+def truth_of_detections(detections: Detections) -> Truth:
+    """The detections' true labels as the scoring reads them; they do not depend on the
+    grouping, so a caller may read them while the detections are associated (the CLI does)."""
+    return truth_of(_labels(detections))
 
 
 def _labels(detections: Detections) -> Any:

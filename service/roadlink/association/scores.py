@@ -33,9 +33,20 @@ class Metrics:
         return asdict(self)
 
 
-def score_grouping(groups: IntArray, labels: ObjectArray | pl.Series) -> Metrics | None:
-    """Score `groups` against `labels` (an object array, or the CSV parser's column of them:
-    `Detections.parsed_texts`) over the labelled detections; None when none is labelled.
+@dataclass(frozen=True)
+class Truth:
+    """The true labels as the scoring reads them (`truth_of`): which detections are labelled,
+    and each labelled one's target code (-1 for clutter). They do not depend on the grouping,
+    so a caller may read them while the detections are associated."""
+
+    labelled: npt.NDArray[np.bool_]
+    codes: IntArray
+
+
+def score_grouping(groups: IntArray, labels: ObjectArray | pl.Series | Truth) -> Metrics | None:
+    """Score `groups` against `labels` (an object array, the CSV parser's column of them:
+    `Detections.parsed_texts`, or their `truth_of`) over the labelled detections; None when
+    none is labelled.
 
     - accuracy (the paper's figure): groups are matched one-to-one to true targets so as to
       maximise agreeing detections (Hungarian method on the contingency table); the share of
@@ -46,49 +57,67 @@ def score_grouping(groups: IntArray, labels: ObjectArray | pl.Series) -> Metrics
       singleton.
     - complete_targets: share of true targets whose detections form exactly one group, no more
       and no less (the row of the target x sensor matrix is exactly right).
+
+    Every figure reads the one contingency table of the detections in a group and of a target
+    (`_pair_counts`, a sort) and the groups' and targets' sizes (counts).
     """
-    labelled, truth = _labelled_codes(labels)
-    if not labelled.any():
+    truth_ = labels if isinstance(labels, Truth) else truth_of(labels)
+    if not truth_.labelled.any():
         return None
-    pred = np.asarray(groups, dtype=np.int64)[labelled]
+    truth = truth_.codes
+    pred = np.asarray(groups, dtype=np.int64)[truth_.labelled]
     both = (pred >= 0) & (truth >= 0)  # in a group and of a target
-    # The contingency table's cells, which the accuracy and the pair counts both read.
-    cells = _pair_counts(pred[both], truth[both]) if both.any() else None
+    empty = np.zeros(0, dtype=np.int64)
+    cells = _pair_counts(pred[both], truth[both]) if both.any() else (empty, empty, empty)
+    group_size = np.bincount(pred[pred >= 0])
+    target_size = np.bincount(truth[truth >= 0])
 
     accuracy = _matched_accuracy(pred, truth, cells)
-    precision, recall = _pairwise_precision_recall(pred, truth, cells)
+    agreeing = _pairs(cells[2])
+    predicted, true = _pairs(group_size), _pairs(target_size)
+    precision = agreeing / predicted if predicted else 1.0
+    recall = agreeing / true if true else 1.0
     f1 = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
+    # Each unassigned and each clutter detection counts as a singleton: a cell, and a group
+    # or target, of its own.
+    alone = int(pred.size - both.sum())
+    ari = _ari_of_sums(
+        n=int(pred.size),
+        same_both=_squares(cells[2]) + alone,
+        same_pred=_squares(group_size) + int(np.sum(pred < 0)),
+        same_truth=_squares(target_size) + int(np.sum(truth < 0)),
+    )
     return Metrics(
         accuracy=accuracy,
         pairwise_precision=precision,
         pairwise_recall=recall,
         pairwise_f1=f1,
-        ari=adjusted_rand_index(_singletons(truth), _singletons(pred)),
-        complete_targets=_complete_share(pred, truth),
+        ari=ari,
+        complete_targets=_complete_share(cells, group_size, target_size),
     )
 
 
-def _matched_accuracy(pred: IntArray, truth: IntArray, cells: Cells | None) -> float:
+def _matched_accuracy(pred: IntArray, truth: IntArray, cells: Cells) -> float:
     right = int(np.sum((pred == -1) & (truth == -1)))
-    if cells is not None:
+    if cells[2].size:
         right += _max_matching_weight(*cells)
     return right / pred.size
 
 
-def _labelled_codes(labels: ObjectArray | pl.Series) -> tuple[npt.NDArray[np.bool_], IntArray]:
+def truth_of(labels: ObjectArray | pl.Series) -> Truth:
     """Which detections are labelled, and the code of each labelled one's target (-1 for
     clutter): its rank among the distinct labels, in code-point order. From the CSV parser's
     column (`Detections.parsed_texts`), polars codes the labels without a str per row."""
     if isinstance(labels, np.ndarray):
         labelled = np.array([t is not None for t in labels], dtype=bool)
-        return labelled, _target_codes(labels[labelled])
+        return Truth(labelled, _target_codes(labels[labelled]))
     import polars as pl
 
     texts = labels.drop_nulls()
     distinct = texts.unique().sort()  # UTF-8's byte order is the code points' order
     codes = texts.cast(pl.Enum(distinct)).to_physical().to_numpy().astype(np.int64)
     codes[(texts == CLUTTER).to_numpy()] = -1
-    return labels.is_not_null().to_numpy(), codes
+    return Truth(labels.is_not_null().to_numpy(), codes)
 
 
 def _target_codes(labels: ObjectArray) -> IntArray:
@@ -124,7 +153,8 @@ def wrongly_grouped(groups: IntArray, labels: ObjectArray) -> npt.NDArray[np.boo
     is exactly (1 - accuracy) x the number of labelled ones.
     """
     groups = np.asarray(groups, dtype=np.int64)
-    labelled, truth = _labelled_codes(labels)
+    truth_ = truth_of(labels)
+    labelled, truth = truth_.labelled, truth_.codes
     wrong = np.zeros(groups.size, dtype=bool)
     if not labelled.any():
         return wrong
@@ -202,23 +232,13 @@ def _solved_matching(
     )
 
 
-def _pairs_within(ids: IntArray) -> int:
-    """Number of unordered pairs of detections sharing an id (ids < 0 share with nobody)."""
-    counts = np.bincount(ids[ids >= 0])
-    return int(np.sum(counts * (counts - 1) // 2))
+def _pairs(sizes: IntArray) -> int:
+    """Number of unordered pairs within groups of `sizes`."""
+    return int(np.sum(sizes * (sizes - 1) // 2))
 
 
-def _pairwise_precision_recall(
-    pred: IntArray, truth: IntArray, cells: Cells | None
-) -> tuple[float, float]:
-    agreeing = 0
-    if cells is not None:
-        counts = cells[2]
-        agreeing = int(np.sum(counts * (counts - 1) // 2))
-    predicted, true = _pairs_within(pred), _pairs_within(truth)
-    precision = agreeing / predicted if predicted else 1.0
-    recall = agreeing / true if true else 1.0
-    return precision, recall
+def _squares(sizes: IntArray) -> int:
+    return int(np.sum(sizes * sizes))
 
 
 def adjusted_rand_index(truth: IntArray, pred: IntArray) -> float:
@@ -232,9 +252,20 @@ def adjusted_rand_index(truth: IntArray, pred: IntArray) -> float:
     pred, truth = np.asarray(pred, dtype=np.int64), np.asarray(truth, dtype=np.int64)
     # A cell's key in one integer: ids below 2n, so 4n^2 stays within int64 for n < 10^9.
     cells = np.unique(pred * (int(truth.max()) + 1) + truth, return_counts=True)[1]
-    same_both = int(np.sum(cells * cells))
-    same_pred = int(np.sum(np.bincount(pred) ** 2))
-    same_truth = int(np.sum(np.bincount(truth) ** 2))
+    return _ari_of_sums(
+        n=n,
+        same_both=_squares(cells),
+        same_pred=_squares(np.bincount(pred)),
+        same_truth=_squares(np.bincount(truth)),
+    )
+
+
+def _ari_of_sums(*, n: int, same_both: int, same_pred: int, same_truth: int) -> float:
+    """The adjusted Rand index of n detections from its sums of squared sizes: of the
+    contingency table's cells, of the predicted groups and of the true targets (exact
+    integers, then scikit-learn's formula)."""
+    if n == 0:
+        return 1.0
     tp = same_both - n
     fp = same_pred - same_both
     fn = same_truth - same_both
@@ -244,22 +275,12 @@ def adjusted_rand_index(truth: IntArray, pred: IntArray) -> float:
     return 2.0 * (tp * tn - fn * fp) / ((tp + fn) * (fn + tn) + (tp + fp) * (fp + tn))
 
 
-def _singletons(ids: IntArray) -> IntArray:
-    """Give every negative id (unassigned, clutter) a label of its own."""
-    out = ids.copy()
-    lone = out < 0
-    out[lone] = out.max(initial=0) + 1 + np.arange(int(lone.sum()))
-    return out
-
-
-def _complete_share(pred: IntArray, truth: IntArray) -> float:
-    """Share of true targets whose detections are exactly one group's labelled detections."""
-    real = truth >= 0
-    if not real.any():
+def _complete_share(cells: Cells, group_size: IntArray, target_size: IntArray) -> float:
+    """Share of true targets whose detections are exactly one group's labelled detections: a
+    cell that holds all of its target and all of its group."""
+    targets = int(np.count_nonzero(target_size))  # codes skip clutter's rank
+    if not targets:
         return 1.0
-    target_ids, target_size = np.unique(truth[real], return_counts=True)
-    group_size = np.bincount(pred[pred >= 0]) if (pred >= 0).any() else np.zeros(0, np.int64)
-    groups, targets, counts = _pair_counts(pred[real], truth[real])
-    whole = (groups >= 0) & (counts == target_size[np.searchsorted(target_ids, targets)])
-    whole[whole] &= group_size[groups[whole]] == counts[whole]
-    return int(whole.sum()) / target_ids.size
+    groups, target, counts = cells
+    whole = (counts == target_size[target]) & (group_size[groups] == counts)
+    return int(whole.sum()) / targets

@@ -26,11 +26,13 @@ from roadlink.association.csvio import (
     read_detections_csv,
     write_detections_csv,
 )
+from roadlink.association.result import truth_of_detections
 from roadlink.association.result_text import (
     DetectionTexts,
     json_detection_texts,
     write_result_json,
 )
+from roadlink.association.scores import Truth
 from roadlink.cli import app
 from roadlink.cli.allocator import (
     fault_in_heap_for,
@@ -266,8 +268,8 @@ def associate_command(
     plot_format = None if plot is None else plot_format_of(plot)
     if plot_kind not in PLOT_KINDS:
         raise fail(f"unknown --plot-kind '{plot_kind}'; known: {', '.join(PLOT_KINDS)}")
-    texts: list[DetectionTexts] = []
-    made_beside = (lambda d: texts.append(json_detection_texts(d))) if as_json else None
+    beside: list[tuple[DetectionTexts, Truth]] = []
+    made_beside = (lambda d: beside.append(_json_beside(d))) if as_json else None
     # The JSON's metrics come last: it is scored while its rows are written (`write_json`).
     scored_now = not as_json or plot is not None
     result = associate_file(file, associator, param or [], made_beside, scored=scored_now)
@@ -278,23 +280,36 @@ def associate_command(
             raise fail(f"cannot write {plot}: {exc.strerror}") from None
         typer.echo(f"wrote {plot_kind} plot to {plot}", err=True)
     if as_json:
-        write_json(result, texts, scored=scored_now)
+        texts, truth = beside[0] if beside else (None, None)
+        write_json(result, texts, truth, scored=scored_now)
     elif as_csv:
         sys.stdout.write(result.to_matrix_csv())
     else:
         print_summary(summary_of(result))
 
 
-def write_json(result: AssociationResult, texts: list[DetectionTexts], *, scored: bool) -> None:
+def _json_beside(detections: Detections) -> tuple[DetectionTexts, Truth]:
+    """What `write_json` takes of the detections alone, made while they are associated: the
+    rows' text and the true labels as the scoring reads them."""
+    return json_detection_texts(detections), truth_of_detections(detections)
+
+
+def write_json(
+    result: AssociationResult,
+    texts: DetectionTexts | None,
+    truth: Truth | None,
+    *,
+    scored: bool,
+) -> None:
     """The result JSON to stdout, as bytes straight to the stream (the text of 10^6 detections
     is hundreds of MiB); an unscored result is scored on a thread while its rows are written
-    (10^6 detections: 0.07 s of the scoring beside 0.25 s of writing)."""
+    (10^6 detections: 0.07 s of the scoring beside 0.25 s of writing). `texts` and `truth`,
+    when given, were made from the detections beforehand (`_json_beside`)."""
     sys.stdout.flush()
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="roadlink-scoring") as pool:
-        scoring = None if scored else pool.submit(result.scored)
+        scoring = None if scored else pool.submit(result.scored, truth)
         metrics = None if scoring is None else (lambda: scoring.result().metrics)
-        prepared = texts[0] if texts else None
-        write_result_json(result, sys.stdout.buffer, prepared, metrics=metrics)
+        write_result_json(result, sys.stdout.buffer, texts, metrics=metrics)
     sys.stdout.buffer.flush()
 
 
