@@ -61,11 +61,11 @@ def score_grouping(groups: IntArray, labels: ObjectArray | pl.Series | Truth) ->
     Every figure reads the one contingency table of the detections in a group and of a target
     (`_pair_counts`, a sort) and the groups' and targets' sizes (counts).
     """
-    truth_ = labels if isinstance(labels, Truth) else truth_of(labels)
-    if not truth_.labelled.any():
+    known = labels if isinstance(labels, Truth) else truth_of(labels)
+    if not known.labelled.any():
         return None
-    truth = truth_.codes
-    pred = np.asarray(groups, dtype=np.int64)[truth_.labelled]
+    truth = known.codes
+    pred = np.asarray(groups, dtype=np.int64)[known.labelled]
     both = (pred >= 0) & (truth >= 0)  # in a group and of a target
     empty = np.zeros(0, dtype=np.int64)
     cells = _pair_counts(pred[both], truth[both]) if both.any() else (empty, empty, empty)
@@ -153,8 +153,8 @@ def wrongly_grouped(groups: IntArray, labels: ObjectArray) -> npt.NDArray[np.boo
     is exactly (1 - accuracy) x the number of labelled ones.
     """
     groups = np.asarray(groups, dtype=np.int64)
-    truth_ = truth_of(labels)
-    labelled, truth = truth_.labelled, truth_.codes
+    known = truth_of(labels)
+    labelled, truth = known.labelled, known.codes
     wrong = np.zeros(groups.size, dtype=bool)
     if not labelled.any():
         return wrong
