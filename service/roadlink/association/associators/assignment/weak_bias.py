@@ -103,12 +103,13 @@ def _matched_cost(pa: np.ndarray, pb: np.ndarray, cost: np.ndarray, gate: float)
     """The cost of the cheapest matching of the (pa, pb) pairs, each detection left alone
     costing half the gate (so only the matched pairs' savings differ between two costings)."""
     left, right = match(pa, pb, cost, gate)
-    chosen = {(a, b) for a, b in zip(left.tolist(), right.tolist(), strict=True)}
-    taken = np.fromiter(
-        ((a, b) in chosen for a, b in zip(pa.tolist(), pb.tolist(), strict=True)),
-        dtype=bool,
-        count=pa.size,
-    )
+    taken = np.zeros(pa.size, dtype=bool)
+    if left.size:
+        # Each detection is matched at most once: a pair is taken where its near detection's
+        # partner is its far one.
+        by_left = np.argsort(left)
+        at = np.minimum(np.searchsorted(left[by_left], pa), left.size - 1)
+        taken = (left[by_left][at] == pa) & (right[by_left][at] == pb)
     alone = np.unique(pa).size + np.unique(pb).size - 2 * left.size
     return float(cost[taken].sum()) + gate / 2 * alone
 
