@@ -167,7 +167,7 @@ def test_the_command_ends_with_the_collector_frozen(monkeypatch):
     def app() -> None:
         raise SystemExit(3)
 
-    monkeypatch.setattr(roadlink.cli, "app", app)
+    monkeypatch.setattr(roadlink.cli, "app_for", lambda args: app)
     with pytest.raises(SystemExit) as ended:
         roadlink.cli.main()
     assert ended.value.code == 3 and frozen == [True]

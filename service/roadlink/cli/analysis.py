@@ -33,12 +33,12 @@ from roadlink.association.result_text import (
     write_result_json,
 )
 from roadlink.association.scores import Truth
-from roadlink.cli import app
 from roadlink.cli.allocator import (
     fault_in_heap_for,
     keep_freed_memory,
     release_freed_memory,
 )
+from roadlink.cli.root import app
 from roadlink.plots import PLOT_FORMATS, PLOT_KINDS, render_plot
 from roadlink.simulation import PRESETS, preset, simulate
 from roadlink.simulation.config import DEFAULT_LANE_CHANGE_PROBABILITY

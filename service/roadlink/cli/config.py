@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from roadlink.cli import app
+from roadlink.cli.root import app
 
 
 class ConfigFormat(StrEnum):

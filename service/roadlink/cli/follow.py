@@ -15,9 +15,9 @@ from typing import Annotated, Any
 import typer
 
 from roadlink.association.csvio import spreadsheet_safe
-from roadlink.cli import app
 from roadlink.cli.client import DEFAULT_URL
 from roadlink.cli.remote import KeyOption, UrlOption, remote
+from roadlink.cli.root import app
 
 # The longest a single long poll waits; the server caps it at ROADLINK_MAX_WAIT_SECONDS.
 POLL_WAIT_SECONDS = 30.0

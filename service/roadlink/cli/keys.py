@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from roadlink.cli import app
+from roadlink.cli.root import app
 from roadlink.cli.server import _migrate, _safe_url, _settings
 from roadlink.db.enums import ApiKeyScope
 

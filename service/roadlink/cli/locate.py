@@ -24,8 +24,8 @@ from roadlink.association.localisation import (
     target_trajectories,
 )
 from roadlink.association.result import AssociationResult
-from roadlink.cli import app
 from roadlink.cli.analysis import AssociatorOption, ParamOption, associate_file, fail
+from roadlink.cli.root import app
 
 
 @app.command("locate")

@@ -19,9 +19,9 @@ from typing import Annotated, Any
 import typer
 
 from roadlink.association.associators import ASSOCIATORS, DEFAULT_ASSOCIATOR
-from roadlink.cli import app
 from roadlink.cli.analysis import ParamOption, print_summary
 from roadlink.cli.client import DEFAULT_URL, Remote, RemoteError
+from roadlink.cli.root import app
 from roadlink.db.enums import JobState
 
 # How often `submit --wait` asks for the job's progress: well inside the default rate limit

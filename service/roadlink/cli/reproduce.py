@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from roadlink.cli import app
+from roadlink.cli.root import app
 
 if TYPE_CHECKING:
     from roadlink.simulation.study import StudyRow

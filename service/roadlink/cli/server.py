@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from roadlink.cli import app
+from roadlink.cli.root import app
 from roadlink.logs import configure_logging
 
 if TYPE_CHECKING:

@@ -7,8 +7,8 @@ from typing import Annotated
 
 import typer
 
-from roadlink.cli import app
 from roadlink.cli.analysis import fail, write_simulated
+from roadlink.cli.root import app
 from roadlink.simulation.sumo import (
     SUMO_SCENARIOS,
     SumoNotInstalledError,
