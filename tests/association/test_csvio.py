@@ -140,3 +140,31 @@ def test_spreadsheet_safe_column_is_spreadsheet_safe_of_each():
     assert spreadsheet_safe_column(text_column(texts)).to_list() == list(
         map(spreadsheet_safe, texts)
     )
+
+
+@pytest.mark.parametrize(("rows", "loads_polars"), [(10, False), (30_000, True)])
+def test_a_small_file_is_read_without_loading_polars(tmp_path, rows, loads_polars):
+    """In a process that has not loaded polars, a file of up to SMALL_BYTES is read by the exact
+    reader (loading polars costs more than that read); a larger one by the fast path. Either
+    reads the same detections (tests/association/test_fast_csv.py)."""
+    import subprocess
+    import sys
+
+    from roadlink.association.csvio import SMALL_BYTES
+
+    path = tmp_path / "d.csv"
+    path.write_text(
+        "position,velocity,timestamp\n"
+        + "".join(f"{k % 5 * 100},20,{k % 5 * 5 + k}\n" for k in range(rows))
+    )
+    assert (path.stat().st_size > SMALL_BYTES) == loads_polars
+    script = (
+        "import sys; from pathlib import Path\n"
+        "from roadlink.association.csvio import read_detections_csv\n"
+        f"d = read_detections_csv(Path({str(path)!r}))\n"
+        f"text = read_detections_csv(Path({str(path)!r}).read_bytes())\n"
+        "print(len(d), len(text), 'polars' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [str(rows), str(rows), str(loads_polars)]

@@ -6,7 +6,7 @@ import sys
 import threading
 
 from roadlink.association.associators import ASSOCIATORS
-from roadlink.association.csvio import READER_IMPORTS
+from roadlink.association.csvio import READER_IMPORTS, SMALL_BYTES
 from roadlink.cli import allocator, analysis
 
 
@@ -67,12 +67,23 @@ def test_associating_a_file_faults_in_its_heap_and_imports_beside_the_read(monke
     )
     monkeypatch.setattr(analysis.importlib, "import_module", imported.append)
     path = tmp_path / "d.csv"
-    path.write_text("position,velocity,timestamp\n0,20,1\n100,20,6\n")
+    rows = "".join(f"{k % 7 * 100},20,{k % 7 * 5 + k}\n" for k in range(SMALL_BYTES // 10))
+    path.write_text("position,velocity,timestamp\n" + rows)
     analysis.associate_file(path, "assignment", [])
     assignment = ASSOCIATORS["assignment"]
     assert started == [(path, assignment.heap_per_detection)]
     assert imported == [*READER_IMPORTS, *assignment.imports_on_first_use]
     assert analysis._importing(()) is None
+
+
+def test_a_small_file_is_read_without_importing_the_fast_parser_beside_it(monkeypatch, tmp_path):
+    """The exact reader takes a small file (`csvio.SMALL_BYTES`): polars is not imported."""
+    imported = []
+    monkeypatch.setattr(analysis.importlib, "import_module", imported.append)
+    path = tmp_path / "d.csv"
+    path.write_text("position,velocity,timestamp\n0,20,1\n100,20,6\n")
+    analysis.associate_file(path, "assignment", [])
+    assert imported == list(ASSOCIATORS["assignment"].imports_on_first_use)
 
 
 def test_a_module_that_fails_to_import_beside_the_read_is_left_to_its_user(monkeypatch):
