@@ -12,6 +12,7 @@ import numpy as np
 from sqlalchemy import Engine, func, select
 
 from roadlink.association.detections import Detections
+from roadlink.association.fast_csv import fast_detections
 from roadlink.db import repository
 from roadlink.db.detection_blocks import Block
 from roadlink.db.engine import make_session_factory, transaction
@@ -42,6 +43,15 @@ def detection_rows(detections: Detections) -> list[dict[str, Any]]:
         }
         for i in range(len(d))
     ]
+
+
+def fast_read(text: str | bytes) -> Detections:
+    """Detection CSV read by the fast path (polars), as a large file is read: its ids and labels
+    polars' columns (`Detections.parsed_texts`). `read_detections_csv` reads a small text by the
+    exact reader where polars is not loaded yet (`csvio.SMALL_BYTES`)."""
+    read = fast_detections(text.encode() if isinstance(text, str) else text)
+    assert read is not None, "not a plain, valid file: the fast path declined it"
+    return read
 
 
 def with_features(detections: Detections, *, lane_sensors: int | None = None) -> Detections:

@@ -14,13 +14,13 @@ from hypothesis import strategies as st
 
 from roadlink.association import associate, matrix_text
 from roadlink.association.csvio import (
-    read_detections_csv,
     spreadsheet_safe,
     write_detections_csv,
 )
 from roadlink.association.detections import Detections
 from roadlink.association.result import AssociationResult, build_result
 from roadlink.simulation import preset, simulate
+from tests.helpers import fast_read
 
 WAYS = ("polars", "lists", "cell by cell")
 
@@ -121,7 +121,7 @@ def results() -> list[AssociationResult]:
     featured = preset("medium", lanes=3, vehicle_lengths=True, vehicle_classes=True)
     faulty = preset("small", miss_probability=0.1, false_alarm_rate=0.1, duplicate_probability=0.05)
     # Read by the fast CSV reader: the ids are polars' column, taken as it is.
-    read = read_detections_csv(write_detections_csv(simulate(featured, seed=4).detections))
+    read = fast_read(write_detections_csv(simulate(featured, seed=4).detections))
     assert read.parsed_texts("detection_id") is not None
     return [
         associate(simulate(preset("large"), seed=2).detections, "assignment", {}),
@@ -243,7 +243,7 @@ def test_ids_read_by_the_fast_reader_are_made_spreadsheet_safe():
     d = original.detections
     columns = (d.position, d.velocity, d.timestamp, d.sensor_id, d.detection_id)
     rows = "".join(",".join(map(str, row)) + "\n" for row in zip(*map(list, columns), strict=True))
-    read = read_detections_csv(f"position,velocity,timestamp,sensor_id,detection_id\n{rows}")
+    read = fast_read(f"position,velocity,timestamp,sensor_id,detection_id\n{rows}")
     assert read.parsed_texts("detection_id") is not None
     result = build_result(read, original.groups, "x", {}, link_confidence=original.link_confidence)
     matrix = assert_written_alike(result)

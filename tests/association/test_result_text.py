@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from roadlink.association import associate, result_text
-from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.association.csvio import write_detections_csv
 from roadlink.association.detections import Detections
 from roadlink.association.result import build_result
 from roadlink.association.result_text import (
@@ -22,6 +22,7 @@ from roadlink.association.result_text import (
     result_json_text,
 )
 from roadlink.simulation import preset, simulate
+from tests.helpers import fast_read
 
 
 @pytest.fixture(autouse=True, scope="module", params=["polars", "lists"])
@@ -54,10 +55,10 @@ def results():
         build_result(d, groups, "x", {"q": "\u00e9"}, link_confidence=small_links),
     ]
     # Read by the fast CSV reader: the ids are polars' column, given to the writers as it is.
-    read = read_detections_csv(write_detections_csv(simulate(faulty, seed=4).detections))
+    read = fast_read(write_detections_csv(simulate(faulty, seed=4).detections))
     rows = zip(d.position.tolist(), d.velocity.tolist(), d.timestamp.tolist(), strict=True)
     numbers = "position,velocity,timestamp\n" + "".join(f"{p!r},{v!r},{t!r}\n" for p, v, t in rows)
-    generated = read_detections_csv(numbers.encode())  # ids d1, d2, ... made by polars
+    generated = fast_read(numbers)  # ids d1, d2, ... made by polars
     assert read.parsed_texts("detection_id") is not None
     assert generated.parsed_texts("detection_id") is not None
     out += [associate(read, "assignment", {}), build_result(generated, groups, "x", {})]
