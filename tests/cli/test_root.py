@@ -56,6 +56,7 @@ def test_help_and_unknown_commands_import_every_command():
     everything = list(dict.fromkeys(COMMAND_MODULES.values()))
     assert imported_by([]) == everything
     assert imported_by(["--help"]) == everything
+    assert imported_by(["--help", "associate"]) == everything  # the root's help
     assert imported_by(["asociate"]) == everything
 
 

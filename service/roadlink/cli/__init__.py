@@ -35,10 +35,9 @@ COMMAND_MODULES = {
 
 def app_for(args: list[str]) -> typer.Typer:
     """The root app with the commands that `args` (a command line without the program's name)
-    can run: its command's module alone, or every module where it names no known command (help,
-    a mistyped name: every command is then listed)."""
-    name = next((arg for arg in args if not arg.startswith("-")), None)
-    module = COMMAND_MODULES.get(name) if name is not None else None
+    can run: its command's module alone, or every module where it does not start with a known
+    command (the root's `--help`, a mistyped name: every command is then listed)."""
+    module = COMMAND_MODULES.get(args[0]) if args else None
     for each in [module] if module is not None else dict.fromkeys(COMMAND_MODULES.values()):
         importlib.import_module(f"roadlink.cli.{each}")
     from roadlink.cli.root import app
