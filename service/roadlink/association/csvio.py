@@ -84,14 +84,10 @@ def read_detections_csv(text: str | bytes | Path) -> Detections:
     """
     if isinstance(text, Path):
         return _read_file(text)
-    if _exact_is_quicker(len(text)):
-        return read_detections_csv_exactly(
-            text.decode("utf-8-sig") if isinstance(text, bytes) else text
-        )
-    data = text if isinstance(text, bytes) else text.encode("utf-8")
-    fast = fast_detections(data)
-    if fast is not None:
-        return fast
+    if not _exact_is_quicker(len(text)):
+        fast = fast_detections(text if isinstance(text, bytes) else text.encode("utf-8"))
+        if fast is not None:
+            return fast
     return read_detections_csv_exactly(
         text.decode("utf-8-sig") if isinstance(text, bytes) else text
     )
