@@ -187,13 +187,13 @@ def cli_run(path: Path) -> CliRun:
     """Time and peak of `roadlink associate FILE --json`, its output discarded.
 
     The peak is the CLI process's own high-water mark (VmHWM), which it reports on exit
-    (`_REPORTING_PEAK`): the `ru_maxrss` that wait4 gives counts the parent's resident set too,
+    (`_REPORTING_CLI`): the `ru_maxrss` that wait4 gives counts the parent's resident set too,
     as the child was forked from it before it started the CLI. The phases are read off the
     monotonic clock, which parent and child share: the child times the CLI's own read,
-    association and writing (`_REPORTING_PEAK` wraps them) from the moment the parent started
-    it."""
+    association and writing (`_REPORTING_CLI` wraps them), and the parent reads them from the
+    moment it started the child."""
     start = time.perf_counter()
-    command = [sys.executable, "-c", _REPORTING_PEAK, repr(start), "associate", str(path), "--json"]
+    command = [sys.executable, "-c", _REPORTING_CLI, "associate", str(path), "--json"]
     with open(os.devnull, "wb") as sink:
         done = subprocess.run(command, stdout=sink, stderr=subprocess.PIPE, text=True)
     elapsed = time.perf_counter() - start
@@ -211,9 +211,9 @@ def cli_run(path: Path) -> CliRun:
     return CliRun(elapsed, report["vmhwm_kib"] / 1024, phases)
 
 
-# `python -m roadlink.cli ARGS` (after the parent's start time), each of its read, association
-# and writing timed, then a JSON line on stderr: those times and the peak resident set.
-_REPORTING_PEAK = """
+# `python -m roadlink.cli ARGS`, each of its read, association and writing timed, then a JSON
+# line on stderr: those times (on the monotonic clock) and the peak resident set.
+_REPORTING_CLI = """
 import json, runpy, sys, time
 from pathlib import Path
 import roadlink.cli.analysis as command
@@ -229,7 +229,7 @@ def timing(name):
     setattr(command, name, timed)
 for name in ("_read", "associate", "write_json"):
     timing(name)
-sys.argv = ["roadlink", *sys.argv[2:]]
+sys.argv = ["roadlink", *sys.argv[1:]]
 try:
     runpy.run_module("roadlink.cli", run_name="__main__", alter_sys=True)
 finally:
