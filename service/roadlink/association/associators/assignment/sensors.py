@@ -134,6 +134,14 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     start = np.searchsorted(sensor[order], np.arange(positions.size + 1)).astype(np.int64)
     floor = params.velocity_floor * float(median(detections.velocity))
     speed = np.maximum(detections.velocity, floor)
+    # Where a sensor's clock is off, its times are set right: the tracks are built on them.
+    # (`clocks` measures lags against this module's `travel_time`, hence imported here.)
+    from roadlink.association.associators.assignment.clocks import clock_offsets
+
+    time = detections.timestamp
+    offsets = clock_offsets(positions, time[order], speed[order], start)
+    if offsets.any():
+        time = time - offsets[sensor]
     log_speed = np.log(speed)
     typical = np.array(
         [median(log_speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]
@@ -143,11 +151,11 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         order,
         start,
         sensor,
-        detections.timestamp,
+        time,
         speed,
         log_speed,
         log_speed - typical[sensor],
-        detections.timestamp[order],
+        time[order],
         1.0 / speed[order],
         log_speed[order],
         np.maximum.reduceat(speed[order], start[:-1]) if order.size else np.zeros(0),

@@ -1,0 +1,194 @@
+"""Sensors' clocks: a sensor whose clock runs seconds ahead or behind the others, found and set
+right before anything is linked.
+
+A field detector stamps each passage with its own clock, and clocks that no time server keeps in
+step drift by seconds or more. A sensor whose clock runs δ late adds δ to every travel time into
+it and takes δ from every travel time out of it. The segments' travel-time biases are factors
+(`SegmentModel.log_bias`), which cannot say that: past a few seconds the travel times out of
+such a sensor are shorter than any vehicle could drive, or below zero, and the tracks break
+there (SUMO's dense motorway, travel times of 9 s, one middle sensor 20 s late: 99.8 % of the
+detections right on time, 74 % with lane and length).
+
+So each segment's lag is measured first: the travel times of its pairs of detections less what
+the kinematic prediction says (`sensors.travel_time`), whose histogram peaks where the true
+pairs are, above the background of unrelated pairs (`Road.lags`). A clock shifts the lags on
+both sides of its sensor by the same seconds, opposite ways; a slow zone, a queue or a speed
+that a sensor reads wrongly move one side, or both the same way, or spread the lags so that no
+peak stands out. A sensor is set right (`clock_offsets`) where both of its segments' lags peak
+clearly and mirror each other, by an offset too large for the learned biases to absorb; the
+smaller ones are the learned biases' (`weak_bias.clock_shifts`). The first and the last sensor
+have one neighbour each, and nothing to mirror: their clocks stay as they are, as does every
+sensor's where the road has fewer than three.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from roadlink.association.associators.assignment.sensors import travel_time
+from roadlink.association.detections import FloatArray, IntArray
+
+# Detections of a segment's near sensor whose pairs are counted, evenly spread over the batch:
+# enough that the true pairs' peak stands out, few enough to cost little at 10^6 detections.
+CLOCK_SAMPLE = 400
+# Fewer detections at either end of a segment and its lag is not searched: a peak of a few
+# dozen pairs cannot stand apart from chance, and a paper-size batch (ten a sensor) pays nothing.
+CLOCK_LEAST_DETECTIONS = 50
+# Seconds searched either side of the kinematic prediction, beyond the segment's typical travel
+# time: clocks that no time server keeps in step drift by this much in an hour or so.
+CLOCK_REACH = 60.0
+# The histogram's bins: 5 % of the typical travel time, at least half a second.
+CLOCK_BIN_SHARE = 0.05
+CLOCK_BIN_LEAST = 0.5
+# The peak's excess over the background (the median bin), in Poisson standard deviations, for a
+# lag to count. Free-flowing segments reach 7-12, clock-shifted ones too; queues' lags spread
+# and their highest bins reach 2-6 by chance.
+CLOCK_SIGNIFICANCE = 7.0
+# The offsets set right: at least this share of the segments' typical travel time (and at least
+# two bins). Smaller ones stay as the learned biases take them.
+CLOCK_LEAST_SHARE = 0.3
+# How far the two lags may be from mirroring each other: this share of the offset, and a bin.
+CLOCK_MIRROR_TOLERANCE = 0.25
+
+
+@dataclass(frozen=True)
+class Lag:
+    """The peak of a segment's lags (s), its significance, its histogram's bin width (s) and the
+    segment's typical travel time (s)."""
+
+    seconds: float
+    significance: float
+    bin_width: float
+    typical: float
+
+
+def clock_offsets(
+    positions: FloatArray,
+    sorted_time: FloatArray,
+    sorted_speed: FloatArray,
+    start: IntArray,
+) -> FloatArray:
+    """Each sensor's clock offset (s; to be taken from its timestamps): 0 where nothing shows
+    one. Sensors in road order, each one's detections `sorted_time[start[k]:start[k + 1]]`
+    ascending, with their (floored) speeds.
+
+    Sensor by sensor, the clearest mirror first (the largest offset), each one set right before
+    its neighbours' lags are measured again: a sensor between two others is judged against
+    clocks already set right."""
+    n = positions.size
+    offsets = np.zeros(n)
+    if n < 3 or np.diff(start).max() < CLOCK_LEAST_DETECTIONS:
+        return offsets
+    road = Road(
+        positions,
+        [sorted_time[start[k] : start[k + 1]].copy() for k in range(n)],
+        [sorted_speed[start[k] : start[k + 1]] for k in range(n)],
+    )
+    lags = road.lags(list(range(n - 1)))
+    for _ in range(n - 2):
+        candidates = {k: mirrored(lags[k - 1], lags[k]) for k in range(1, n - 1)}
+        found = {k: offset for k, offset in candidates.items() if offset is not None}
+        if not found:
+            break
+        k = max(found, key=lambda j: abs(found[j]))
+        offsets[k] += found[k]
+        road.times[k] -= found[k]
+        lags[k - 1], lags[k] = road.lags([k - 1, k])
+    return offsets
+
+
+def mirrored(into: Lag | None, out_of: Lag | None) -> float | None:
+    """The clock offset of the sensor between two segments, where their lags mirror each other
+    (`into` its sensor, `out_of` it); else None."""
+    if into is None or out_of is None:
+        return None
+    offset = 0.5 * (into.seconds - out_of.seconds)
+    bin_width = max(into.bin_width, out_of.bin_width)
+    least = max(CLOCK_LEAST_SHARE * min(into.typical, out_of.typical), 2 * bin_width)
+    if abs(offset) < least:
+        return None
+    if abs(into.seconds + out_of.seconds) > CLOCK_MIRROR_TOLERANCE * abs(offset) + bin_width:
+        return None
+    return offset
+
+
+@dataclass(frozen=True)
+class Road:
+    """The sensors' positions, and each sensor's detection times (ascending) and speeds."""
+
+    positions: FloatArray
+    times: list[FloatArray]
+    speeds: list[FloatArray]
+
+    def lags(self, segments: list[int]) -> list[Lag | None]:
+        """The peak of each segment's lags (far time - near time - kinematic travel time) over
+        its pairs within reach, where it stands out (`CLOCK_SIGNIFICANCE`); else None. Segment
+        k joins sensors k and k + 1. All segments' pairs at once: a segment's own numpy calls
+        cost more than its pairs at ten thousand detections."""
+        pairs = [self._pairs(k) for k in segments]
+        measured = [p for p in pairs if p is not None]
+        if not measured:
+            return [None] * len(segments)
+        lag = np.concatenate([p.lags for p in measured])
+        width = np.array([p.width for p in measured])
+        reach = np.array([p.reach for p in measured])
+        bins = np.ceil(2 * reach / width).astype(np.int64)
+        row = np.repeat(np.arange(len(measured)), [p.lags.size for p in measured])
+        index = np.floor((lag + reach[row]) / width[row]).astype(np.int64)
+        inside = (index >= 0) & (index < bins[row])
+        first_bin = np.cumsum(bins) - bins
+        histograms = np.bincount((first_bin[row] + index)[inside], minlength=int(bins.sum()))
+        peaks = iter(
+            _peak(p, histograms[first_bin[r] : first_bin[r] + bins[r]])
+            for r, p in enumerate(measured)
+        )
+        return [None if p is None else next(peaks) for p in pairs]
+
+    def _pairs(self, k: int) -> SegmentPairs | None:
+        """Segment k's sampled detections' lags to the far sensor's detections within reach of
+        their arrival at their own speed (None with too few detections at either end)."""
+        near_time, near_speed = self.times[k], self.speeds[k]
+        far_time, far_speed = self.times[k + 1], self.speeds[k + 1]
+        if min(near_time.size, far_time.size) < CLOCK_LEAST_DETECTIONS:
+            return None
+        gap = float(self.positions[k + 1] - self.positions[k])
+        typical = float(travel_time(gap, np.median(near_speed), np.median(far_speed)))
+        reach = CLOCK_REACH + typical
+        if near_time.size > CLOCK_SAMPLE:
+            sample = np.linspace(0, near_time.size - 1, CLOCK_SAMPLE).astype(np.int64)
+            near_time, near_speed = near_time[sample], near_speed[sample]
+        expected = near_time + gap / near_speed
+        lo = np.searchsorted(far_time, expected - reach)
+        count = np.searchsorted(far_time, expected + reach) - lo
+        which = np.repeat(np.arange(near_time.size), count)
+        at = np.arange(which.size) + np.repeat(lo - (np.cumsum(count) - count), count)
+        lags = far_time[at] - near_time[which]
+        lags -= travel_time(gap, near_speed[which], far_speed[at])
+        return SegmentPairs(lags, reach, max(CLOCK_BIN_SHARE * typical, CLOCK_BIN_LEAST), typical)
+
+
+@dataclass(frozen=True)
+class SegmentPairs:
+    """A segment's pairs' lags (s), the reach they were gathered within either side (s), its
+    histogram's bin width (s) and its typical travel time (s)."""
+
+    lags: FloatArray
+    reach: float
+    width: float
+    typical: float
+
+
+def _peak(pairs: SegmentPairs, histogram: npt.NDArray[np.int64]) -> Lag | None:
+    """The histogram's highest bin, where it stands out: the mean of the lags in it and the bins
+    either side."""
+    background = max(float(np.median(histogram)), 1.0)
+    peak = int(np.argmax(histogram))
+    significance = (histogram[peak] - background) / np.sqrt(background)
+    if significance < CLOCK_SIGNIFICANCE:
+        return None
+    centre = -pairs.reach + (peak + 0.5) * pairs.width
+    near = np.abs(pairs.lags - centre) <= 1.5 * pairs.width
+    return Lag(float(np.mean(pairs.lags[near])), float(significance), pairs.width, pairs.typical)
