@@ -1,8 +1,13 @@
 """`roadlink simulate` and `roadlink associate` (`cli/analysis.py`) as a user runs them."""
 
+import dataclasses
 import json
+import subprocess
+import sys
 import threading
+from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -238,3 +243,24 @@ def test_work_beside_the_association_sees_the_detections_and_its_errors_surface(
 
     with pytest.raises(RuntimeError, match="beside"):
         analysis.associate_file(small_csv, "assignment", [], broken)
+
+
+def test_associate_names_a_sensor_whose_clock_is_off_on_stderr(tmp_path):
+    """The association sets the clock right (`assignment/clocks.py`); the command says which
+    sensor it was, in a process of its own, as a user runs it."""
+    dense = read_detections_csv(Path(__file__).parents[1] / "data" / "sumo" / "sumo-dense.csv")
+    middle = np.unique(dense.position)[5]
+    late = dataclasses.replace(
+        dense, timestamp=dense.timestamp + np.where(dense.position == middle, 20.0, 0.0)
+    )
+    path = tmp_path / "late.csv"
+    path.write_text(write_detections_csv(late))
+    out = subprocess.run(
+        [sys.executable, "-m", "roadlink.cli", "associate", str(path)],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 0, out.stderr
+    assert f"the sensor at position {middle:g} stamps its detections" in out.stderr
+    assert "s later than the sensors either side of it" in out.stderr
+    assert "accuracy" in out.stdout

@@ -115,3 +115,18 @@ def test_dense_traffic_past_an_offset_clock_is_associated_as_on_time(seconds):
     off = associate(shifted("sumo-dense", seconds), "assignment").metrics
     assert on_time is not None and off is not None
     assert off.accuracy >= on_time.accuracy - 0.005
+
+
+def test_a_sensor_set_right_is_logged_for_its_detectors_owner(caplog):
+    d = shifted("sumo-dense", 20.0)
+    with caplog.at_level("WARNING", logger="roadlink.association.associators.assignment.clocks"):
+        arrange(d.without_labels(), PARAMS)
+    position = float(np.unique(d.position)[MIDDLE])
+    assert [r.getMessage().split(" stamps")[0] for r in caplog.records] == [
+        f"the sensor at position {position:g}"
+    ]
+    assert "s later than the sensors either side of it" in caplog.records[0].getMessage()
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="roadlink.association.associators.assignment.clocks"):
+        arrange(shifted("sumo-dense", 0.0).without_labels(), PARAMS)
+    assert not caplog.records

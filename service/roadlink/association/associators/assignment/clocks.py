@@ -23,6 +23,7 @@ sensor's where the road has fewer than three.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,8 @@ import numpy.typing as npt
 
 from roadlink.association.associators.assignment.sensors import travel_time
 from roadlink.association.detections import FloatArray, IntArray
+
+LOG = logging.getLogger(__name__)
 
 # Detections of a segment's near sensor whose pairs are counted, evenly spread over the batch:
 # enough that the true pairs' peak stands out, few enough to cost little at 10^6 detections.
@@ -98,6 +101,19 @@ def clock_offsets(
         road.times[k] -= found[k]
         lags[k - 1], lags[k] = road.lags([k - 1, k])
     return offsets
+
+
+def report_clock_offsets(positions: FloatArray, offsets: FloatArray) -> None:
+    """Log each sensor whose clock was set right (a warning: someone should set the detector's
+    own clock right; the association is not affected)."""
+    for k in np.flatnonzero(offsets):
+        LOG.warning(
+            "the sensor at position %g stamps its detections %.1f s %s than the sensors "
+            "either side of it: its clock is off; its times were set right for the association",
+            positions[k],
+            abs(offsets[k]),
+            "later" if offsets[k] > 0 else "earlier",
+        )
 
 
 def mirrored(into: Lag | None, out_of: Lag | None) -> float | None:

@@ -136,12 +136,16 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     speed = np.maximum(detections.velocity, floor)
     # Where a sensor's clock is off, its times are set right: the tracks are built on them.
     # (`clocks` measures lags against this module's `travel_time`, hence imported here.)
-    from roadlink.association.associators.assignment.clocks import clock_offsets
+    from roadlink.association.associators.assignment.clocks import (
+        clock_offsets,
+        report_clock_offsets,
+    )
 
     time = detections.timestamp
     offsets = clock_offsets(positions, time[order], speed[order], start)
     if offsets.any():
         time = time - offsets[sensor]
+        report_clock_offsets(positions, offsets)
     log_speed = np.log(speed)
     typical = np.array(
         [median(log_speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]
