@@ -13,6 +13,7 @@ from roadlink.association.associators.assignment.anchors import (
     weigh_anchors,
 )
 from roadlink.association.associators.assignment.arrays import filled, same
+from roadlink.association.associators.assignment.clocks import report_clock_offsets
 from roadlink.association.associators.assignment.confidence import (
     cut_weak_links,
     link_confidence,
@@ -59,6 +60,8 @@ class AssignmentAssociator(Associator):
         from the prior, link and learn for `em_rounds` rounds and once more, re-pair for
         `refine_sweeps` sweeps, and keep the tracks that are targets."""
         s = arrange(detections, self.params)
+        # Said once a run here, not by `arrange`, which live association repeats every step.
+        report_clock_offsets(s.positions, s.clock_offsets)
         params = within_time_scale(self.params, s.typical_travel_time())
         self.effective_params = params
         prior = segment_prior(s, params.max_skip + 1, params)

@@ -6,8 +6,8 @@ step drift by seconds or more. A sensor whose clock runs δ late adds δ to ever
 it and takes δ from every travel time out of it. The segments' travel-time biases are factors
 (`SegmentModel.log_bias`), which cannot say that: past a few seconds the travel times out of
 such a sensor are shorter than any vehicle could drive, or below zero, and the tracks break
-there (SUMO's dense motorway, travel times of 9 s, one middle sensor 20 s late: 99.8 % of the
-detections right on time, 74 % with lane and length).
+there (SUMO's dense motorway with lane and length, travel times of 9 s: 99.8 % of the detections
+right on time, 74 % with one middle sensor 20 s late).
 
 So each segment's lag is measured first: the travel times of its pairs of detections less what
 the kinematic prediction says (`sensors.travel_time`), whose histogram peaks where the true
@@ -103,9 +103,11 @@ def clock_offsets(
     return offsets
 
 
-def report_clock_offsets(positions: FloatArray, offsets: FloatArray) -> None:
+def report_clock_offsets(positions: FloatArray, offsets: FloatArray | None) -> None:
     """Log each sensor whose clock was set right (a warning: someone should set the detector's
     own clock right; the association is not affected)."""
+    if offsets is None:
+        return
     for k in np.flatnonzero(offsets):
         LOG.warning(
             "the sensor at position %g stamps its detections %.1f s %s than the sensors "

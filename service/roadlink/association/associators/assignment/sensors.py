@@ -51,6 +51,7 @@ class Sensors:
     top_speed: FloatArray  # the fastest speed measured at each sensor
     median_speed: FloatArray  # the median (floored) speed at each sensor
     features: SensorFeatures | None = None  # lane, length, class, where detectors report them
+    clock_offsets: FloatArray | None = None  # seconds taken from each sensor's times (`clocks`)
     _reaching: dict[int, tuple[IntArray, IntArray]] = field(default_factory=dict, repr=False)
     _starts: list[int] = field(default_factory=list, repr=False)  # `start` as Python ints
 
@@ -136,16 +137,12 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     speed = np.maximum(detections.velocity, floor)
     # Where a sensor's clock is off, its times are set right: the tracks are built on them.
     # (`clocks` measures lags against this module's `travel_time`, hence imported here.)
-    from roadlink.association.associators.assignment.clocks import (
-        clock_offsets,
-        report_clock_offsets,
-    )
+    from roadlink.association.associators.assignment.clocks import clock_offsets
 
     time = detections.timestamp
     offsets = clock_offsets(positions, time[order], speed[order], start)
     if offsets.any():
         time = time - offsets[sensor]
-        report_clock_offsets(positions, offsets)
     log_speed = np.log(speed)
     typical = np.array(
         [median(log_speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]
@@ -165,4 +162,5 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         np.maximum.reduceat(speed[order], start[:-1]) if order.size else np.zeros(0),
         np.array([median(speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]),
         SensorFeatures.of(detections),
+        offsets,
     )
