@@ -35,6 +35,10 @@ from roadlink.association.associators.assignment.associator import (
 )
 from roadlink.association.associators.assignment.confidence import cut_weak_links
 from roadlink.association.associators.assignment.confirmation import confirm_targets
+from roadlink.association.associators.assignment.duplicates import (
+    duplicate_followers,
+    join_duplicates,
+)
 from roadlink.association.associators.assignment.params import within_time_scale
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.sensors import Sensors, arrange
@@ -102,13 +106,14 @@ def associate_window(
         learned = None
         prior = segment_prior(s, effective.max_skip + 1, effective)
         model, rounds = prior, effective.em_rounds + 1
-    built, model, anchor = link_and_learn(s, effective, prior, model, rounds)
+    leader = duplicate_followers(s, effective)
+    built, model, anchor = link_and_learn(s, effective, prior, model, rounds, leader=leader)
     track, confidence = repair_and_judge(s, effective, model, built, anchor)
     target = confirm_targets(s, model, effective, track, anchor)
     target, kept = cut_weak_links(s, target, confidence, effective.min_confidence)
     if learned is None and _learned_enough(s, built):
         learned = Learned(key, prior, clock, model)
-    return target, kept, learned
+    return join_duplicates(target, leader), kept, learned
 
 
 def _learned_enough(s: Sensors, track: IntArray) -> bool:

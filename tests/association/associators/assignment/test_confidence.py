@@ -92,14 +92,22 @@ def test_marginals_are_near_the_exact_ones_on_small_graphs() -> None:
 
 
 def links_and_truth(result: AssociationResult) -> tuple[np.ndarray, np.ndarray]:
-    """Each link's confidence, and whether it joins two detections of one vehicle."""
-    d, groups = result.detections, result.groups
-    assert result.link_confidence is not None
+    """Each link's confidence, and whether it joins two detections of one vehicle. A copy of a
+    passage, which joins its twin's target with no link of its own, is no link."""
+    d, groups, links = result.detections, result.groups, result.link_confidence
+    assert links is not None
     assigned = np.flatnonzero(groups >= 0)
-    order = assigned[np.lexsort((d.position[assigned], groups[assigned]))]
+    # Target by target in road order, a sensor's linked detection before a copy beside it.
+    order = assigned[
+        np.lexsort((np.isnan(links[assigned]), d.position[assigned], groups[assigned]))
+    ]
+    copy = (groups[order[1:]] == groups[order[:-1]]) & (
+        d.position[order[1:]] == d.position[order[:-1]]
+    )
+    order = order[np.r_[True, ~copy]]
     same = groups[order[1:]] == groups[order[:-1]]
     before, after = order[:-1][same], order[1:][same]
-    return result.link_confidence[after], d.target[before] == d.target[after]
+    return links[after], d.target[before] == d.target[after]
 
 
 def test_confidence_is_calibrated_on_faulty_traffic() -> None:

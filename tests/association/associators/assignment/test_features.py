@@ -65,8 +65,9 @@ def test_a_sensor_that_measures_no_length_is_handled_per_detection():
 
 
 # Lanes alone (single loops that report their lane, no length): stop-and-go on the committed
-# seed-0 case, with lane-order anchors and without them (`lane_anchors=false`), as measured.
-MEASURED_LANES_ALONE = (0.652, 0.441)
+# seed-0 case, with lane-order anchors and without them (`lane_anchors=false`), as measured
+# (0.652 and 0.441 before a report in another lane could no longer be taken for a copy).
+MEASURED_LANES_ALONE = (0.654, 0.447)
 
 
 @pytest.mark.slow

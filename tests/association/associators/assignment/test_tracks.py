@@ -1,5 +1,5 @@
-"""Tracks from links (`assignment/tracks.py`): which report may duplicate which, and a track's
-chain of detections read both ways."""
+"""Tracks from links (`assignment/tracks.py`): the sequential pass, and a track's chain of
+detections read both ways."""
 
 import numpy as np
 import pytest
@@ -9,6 +9,7 @@ from roadlink.association.associators.assignment import (
     AssignmentParams,
     tracks,
 )
+from roadlink.association.associators.assignment.duplicates import duplicate_followers
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import Gate
 from roadlink.association.associators.assignment.learning import learn_segments
@@ -23,7 +24,6 @@ from roadlink.association.associators.assignment.tracks import (
     LevelRelay,
     SweepSetup,
     build_tracks,
-    duplicate_followers,
     successors,
     tracks_from_links,
 )
@@ -38,20 +38,6 @@ def three_sensors() -> Detections:
         velocity=[20.0, 25.0, 20.0, 25.0, 20.0, 25.0],
         timestamp=[0.0, 1.0, 5.0, 5.0, 10.0, 9.0],
     )
-
-
-def test_a_report_moments_after_one_of_the_same_speed_may_duplicate_it():
-    d = Detections.from_columns(
-        position=[0.0, 0.0, 0.0, 0.0, 100.0],
-        velocity=[20.0, 20.5, 30.0, 20.0, 20.0],
-        timestamp=[0.0, 0.2, 0.3, 5.0, 5.0],
-    )
-    params = AssignmentParams(duplicate_window=0.5, duplicate_velocity_tolerance=0.05)
-    # Row 1 copies row 0 (0.2 s later, 2.5 % faster); row 2 is too fast to be a copy; row 3
-    # comes too late; row 4 is alone at its sensor.
-    assert duplicate_followers(arrange(d, params), params).tolist() == [-1, 0, -1, -1, -1]
-    off = AssignmentParams(duplicate_window=0.0)
-    assert duplicate_followers(arrange(d, off), off).tolist() == [-1] * 5
 
 
 def test_successors_follow_each_track_in_road_order():
@@ -189,29 +175,3 @@ def test_a_pass_that_prices_every_link_at_once_links_what_it_links_sensor_by_sen
         assert all(
             np.array_equal(x, y, equal_nan=True) for x, y in zip(at_once, apart, strict=True)
         )
-
-
-@pytest.mark.parametrize("window", [0.5, 5.0, 60.0])
-@pytest.mark.parametrize("name", ["medium", "congested"])
-def test_the_reports_each_may_duplicate_are_each_sensors_own_lag_by_lag(
-    window: float, name: str
-) -> None:
-    # Every sensor's reports at once, lag after lag (few reports a sensor), or sensor by sensor
-    # (the congested preset's many): the leaders found sensor by sensor.
-    params = AssignmentParams(duplicate_window=window, duplicate_velocity_tolerance=0.3)
-    d = simulate(preset(name, duplicate_probability=0.3, false_alarm_rate=0.1), seed=3)
-    s = arrange(d.detections, params)
-    leader = np.full(s.time.size, -1, dtype=np.int64)
-    tolerance = np.log1p(params.duplicate_velocity_tolerance)
-    for k in range(s.positions.size):
-        m = s.members(k)
-        for lag in range(1, m.size):
-            later, earlier = m[lag:], m[:-lag]
-            close = s.time[later] - s.time[earlier] <= params.duplicate_window
-            if not close.any():
-                break
-            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
-            fresh = alike & (leader[later] < 0)
-            leader[later[fresh]] = earlier[fresh]
-    found = duplicate_followers(s, params)
-    assert (found >= 0).sum() > 3 and np.array_equal(found, leader)

@@ -19,6 +19,10 @@ from roadlink.association.associators.assignment.confidence import (
     link_confidence,
 )
 from roadlink.association.associators.assignment.confirmation import confirm_targets
+from roadlink.association.associators.assignment.duplicates import (
+    duplicate_followers,
+    join_duplicates,
+)
 from roadlink.association.associators.assignment.learning import learn_segments
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import (
@@ -32,7 +36,6 @@ from roadlink.association.associators.assignment.tracks import (
     LevelRelay,
     SweepSetup,
     build_tracks,
-    duplicate_followers,
 )
 from roadlink.association.associators.base import Associator, Progress
 from roadlink.association.detections import Detections, FloatArray, IntArray
@@ -44,8 +47,8 @@ class AssignmentAssociator(Associator):
         "Constraint-aware tracking: links each sensor's detections to the tracks of the previous "
         "sensors by sparse minimum-cost assignment with a kinematic cost, bridging missed "
         "detections, then learns each road segment's travel-time behaviour and re-associates. "
-        "At most one detection per sensor per target; false alarms stay unassigned; needs no "
-        "labels and no target count."
+        "One passage per sensor per target (a passage reported twice keeps both reports "
+        "there); false alarms stay unassigned; needs no labels and no target count."
     )
     # `edges` (log_ndtr) and `matching` (connected components, the sparse assignment).
     imports_on_first_use: ClassVar[tuple[str, ...]] = ("scipy.special", "scipy.sparse.csgraph")
@@ -70,13 +73,16 @@ class AssignmentAssociator(Associator):
         rounds = params.em_rounds + 1
         passes = Passes(progress, rounds + params.refine_sweeps)
         sweep = SweepSetup()
-        track, model, anchor = link_and_learn(s, params, prior, prior, rounds, passes, sweep)
+        leader = duplicate_followers(s, params)
+        track, model, anchor = link_and_learn(
+            s, params, prior, prior, rounds, passes, sweep, leader
+        )
         track, confidence = repair_and_judge(s, params, model, track, anchor, passes, rounds, sweep)
         # The sweep's window edges (two numbers a detection) are not the confirmation's.
         del sweep
         target = confirm_targets(s, model, params, track, anchor)
         target, self.link_confidence = cut_weak_links(s, target, confidence, params.min_confidence)
-        return target
+        return join_duplicates(target, leader)
 
 
 @dataclass(frozen=True)
@@ -95,6 +101,7 @@ def link_and_learn(
     rounds: int,
     passes: Passes = Passes(),
     sweep: SweepSetup | None = None,
+    leader: IntArray | None = None,
 ) -> tuple[IntArray, SegmentModel, Anchors | None]:
     """`rounds` sequential passes from `model`, learning the segments between them (towards
     `prior`), and lane order's anchors from the first tracks, their chains drawn again once with
@@ -107,8 +114,11 @@ def link_and_learn(
     are usually final, and the rounds after it were most of the associator's time).
 
     A round whose model the re-pairing sweep may use (one that may end the loop, or the last)
-    works out the sweep's gating and edges into `sweep`, where given (`tracks.SweepSetup`)."""
-    leader = duplicate_followers(s, params)
+    works out the sweep's gating and edges into `sweep`, where given (`tracks.SweepSetup`).
+    `leader`: each report's twin it may copy (`duplicates.duplicate_followers`, found here where
+    not given)."""
+    if leader is None:
+        leader = duplicate_followers(s, params)
     track = first = np.zeros(0, dtype=np.int64)
     anchor, chains = None, None
     # Without lengths a chain drawn again would be the same.

@@ -28,6 +28,8 @@ import numpy as np
 from roadlink.association.associators.assignment.robust import centre_and_spread
 from roadlink.association.detections import NO_LANE, Detections, FloatArray, IntArray
 
+# A detection whose class is not reported (`SensorFeatures.vehicle_class`).
+NO_CLASS = -1
 # Before any track is learned: a relative length error of 10 % (a loop's is 5-10 %).
 PRIOR_LENGTH_SPREAD = 0.10
 # A measured spread below this is taken as this: lengths are never exact.
@@ -54,7 +56,7 @@ class SensorFeatures:
 
     log_length: FloatArray  # NaN where not measured
     lane: IntArray  # NO_LANE where not reported
-    vehicle_class: IntArray  # index into the batch's classes, -1 where not reported
+    vehicle_class: IntArray  # index into the batch's classes, NO_CLASS where not reported
     n_lanes: int
     n_classes: int
 
@@ -66,7 +68,7 @@ class SensorFeatures:
             return None
         reported = detections.has_vehicle_class
         names = np.unique(detections.vehicle_class[reported].astype(str))
-        vehicle_class = np.full(len(detections), -1, dtype=np.int64)
+        vehicle_class = np.full(len(detections), NO_CLASS, dtype=np.int64)
         vehicle_class[reported] = np.searchsorted(
             names, detections.vehicle_class[reported].astype(str)
         )

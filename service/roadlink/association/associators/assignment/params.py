@@ -261,7 +261,8 @@ class AssignmentParams(AssociatorParams):
         default=0.5,
         ge=0,
         description="Two reports of one sensor at most this far apart in time (time units) with "
-        "near-equal speed may be one passage reported twice; only one of them joins a track. "
+        "near-equal speed (and the same lane and class where both report them) may be one passage "
+        "reported twice: only one of them is linked into a track, and the other joins its target. "
         "Held to at most a quarter of a typical travel time between neighbouring sensors, so "
         "the default also suits minutes or hours. 0 disables.",
     )

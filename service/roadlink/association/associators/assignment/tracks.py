@@ -18,7 +18,6 @@ from roadlink.association.associators.assignment.costs import (
 )
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import (
-    GATE_AT_ONCE,
     EverySensor,
     Gate,
     Pairs,
@@ -111,34 +110,6 @@ def level_terms(s: Sensors) -> list[tuple[FloatArray, FloatArray]]:
         measured = np.isfinite(s.features.log_length)
         terms.append((np.where(measured, s.features.log_length, 0.0), measured.astype(float)))
     return terms
-
-
-def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
-    """For every detection, the earlier report of the same sensor it may duplicate (-1 if none):
-    within `duplicate_window` in time and `duplicate_velocity_tolerance` in speed."""
-    n = s.time.size
-    leader = np.full(n, -1, dtype=np.int64)
-    if params.duplicate_window <= 0:
-        return leader
-    tolerance = np.log1p(params.duplicate_velocity_tolerance)
-    # With few reports a sensor (a paper-size batch), every sensor's at once, lag after lag (a
-    # sensor's times ascend, and are finite, so once no two reports `lag` apart are close, none
-    # further apart are); else sensor by sensor, so that one sensor's crowd of close reports
-    # costs no pass over the others'. The nearest earlier report first.
-    at_once = n <= GATE_AT_ONCE * s.positions.size
-    runs = [s.order] if at_once else [s.members(k) for k in range(s.positions.size)]
-    for m in runs:
-        for lag in range(1, m.size):
-            later, earlier = m[lag:], m[:-lag]
-            close = s.time[later] - s.time[earlier] <= params.duplicate_window
-            if at_once:
-                close &= s.sensor[later] == s.sensor[earlier]
-            if not close.any():
-                break
-            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
-            fresh = alike & (leader[later] < 0)
-            leader[later[fresh]] = earlier[fresh]
-    return leader
 
 
 @dataclass

@@ -1,0 +1,79 @@
+"""A passage reported twice: which report may copy which, and the copy's place in the result.
+
+Detectors re-trigger on one vehicle: the same sensor reports it again moments later at nearly
+the same speed. Both reports are the vehicle's, but a track holds one detection a sensor, so
+while tracks are built a copy never starts a track of its own (`tracks._births`), and once they
+are built, a copy left out of every target joins its twin's (`join_duplicates`): it is one of
+that vehicle's detections, and a user (and the scoring) finds it there rather than unassigned.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from roadlink.association.associators.assignment.features import NO_CLASS, SensorFeatures
+from roadlink.association.associators.assignment.gating import GATE_AT_ONCE
+from roadlink.association.associators.assignment.params import AssignmentParams
+from roadlink.association.associators.assignment.sensors import Sensors
+from roadlink.association.detections import NO_LANE, IntArray
+
+
+def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
+    """For every detection, the earlier report of the same sensor it may duplicate (-1 if none):
+    within `duplicate_window` in time and `duplicate_velocity_tolerance` in speed, and, where
+    both report them, in the same lane and of the same class (a copy reads them again; a vehicle
+    in the next lane at the same speed is another vehicle)."""
+    n = s.time.size
+    leader = np.full(n, -1, dtype=np.int64)
+    if params.duplicate_window <= 0:
+        return leader
+    tolerance = np.log1p(params.duplicate_velocity_tolerance)
+    # With few reports a sensor (a paper-size batch), every sensor's at once, lag after lag (a
+    # sensor's times ascend, and are finite, so once no two reports `lag` apart are close, none
+    # further apart are); else sensor by sensor, so that one sensor's crowd of close reports
+    # costs no pass over the others'. The nearest earlier report first.
+    at_once = n <= GATE_AT_ONCE * s.positions.size
+    runs = [s.order] if at_once else [s.members(k) for k in range(s.positions.size)]
+    for m in runs:
+        for lag in range(1, m.size):
+            later, earlier = m[lag:], m[:-lag]
+            close = s.time[later] - s.time[earlier] <= params.duplicate_window
+            if at_once:
+                close &= s.sensor[later] == s.sensor[earlier]
+            if not close.any():
+                break
+            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
+            if s.features is not None:
+                alike &= _features_agree(s.features, later, earlier)
+            fresh = alike & (leader[later] < 0)
+            leader[later[fresh]] = earlier[fresh]
+    return leader
+
+
+def _features_agree(f: SensorFeatures, a: IntArray, b: IntArray) -> np.ndarray:
+    """Whether each pair's lanes and classes agree where both report them."""
+    lane_a, lane_b = f.lane[a], f.lane[b]
+    class_a, class_b = f.vehicle_class[a], f.vehicle_class[b]
+    same_lane = (lane_a == lane_b) | (lane_a == NO_LANE) | (lane_b == NO_LANE)
+    same_class = (class_a == class_b) | (class_a == NO_CLASS) | (class_b == NO_CLASS)
+    return same_lane & same_class
+
+
+def join_duplicates(target: IntArray, leader: IntArray) -> IntArray:
+    """`target` with each pair of reports that may be one passage (`leader`) where one is in a
+    target and the other in none made one: the other joins that target. Either of the two may be
+    the one left out (the tracks may have taken the copy). A copy of a copy joins too (a report
+    reaches its target over as many copies as there are)."""
+    joined = target.copy()
+    follower = np.flatnonzero(leader >= 0)
+    first = leader[follower]
+    while True:
+        forward = (joined[follower] < 0) & (joined[first] >= 0)
+        backward = (joined[first] < 0) & (joined[follower] >= 0)
+        if not (forward.any() or backward.any()):
+            return joined
+        joined[follower[forward]] = joined[first[forward]]
+        # A report copied twice, its leader left out: the first copy in a target decides.
+        back_from, back_to = follower[backward], first[backward]
+        _, once = np.unique(back_to, return_index=True)
+        joined[back_to[once]] = joined[back_from[once]]

@@ -1,0 +1,103 @@
+"""A passage reported twice (`assignment/duplicates.py`): which report may copy which, and the
+copy joining its twin's target."""
+
+import numpy as np
+import pytest
+
+from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment.duplicates import (
+    duplicate_followers,
+    join_duplicates,
+)
+from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.detections import Detections
+from roadlink.simulation import preset, simulate
+
+
+def test_a_report_moments_after_one_of_the_same_speed_may_duplicate_it():
+    d = Detections.from_columns(
+        position=[0.0, 0.0, 0.0, 0.0, 100.0],
+        velocity=[20.0, 20.5, 30.0, 20.0, 20.0],
+        timestamp=[0.0, 0.2, 0.3, 5.0, 5.0],
+    )
+    params = AssignmentParams(duplicate_window=0.5, duplicate_velocity_tolerance=0.05)
+    # Row 1 copies row 0 (0.2 s later, 2.5 % faster); row 2 is too fast to be a copy; row 3
+    # comes too late; row 4 is alone at its sensor.
+    assert duplicate_followers(arrange(d, params), params).tolist() == [-1, 0, -1, -1, -1]
+    off = AssignmentParams(duplicate_window=0.0)
+    assert duplicate_followers(arrange(d, off), off).tolist() == [-1] * 5
+
+
+@pytest.mark.parametrize("window", [0.5, 5.0, 60.0])
+@pytest.mark.parametrize("name", ["medium", "congested"])
+def test_the_reports_each_may_duplicate_are_each_sensors_own_lag_by_lag(
+    window: float, name: str
+) -> None:
+    # Every sensor's reports at once, lag after lag (few reports a sensor), or sensor by sensor
+    # (the congested preset's many): the leaders found sensor by sensor.
+    params = AssignmentParams(duplicate_window=window, duplicate_velocity_tolerance=0.3)
+    d = simulate(preset(name, duplicate_probability=0.3, false_alarm_rate=0.1), seed=3)
+    s = arrange(d.detections, params)
+    leader = np.full(s.time.size, -1, dtype=np.int64)
+    tolerance = np.log1p(params.duplicate_velocity_tolerance)
+    for k in range(s.positions.size):
+        m = s.members(k)
+        for lag in range(1, m.size):
+            later, earlier = m[lag:], m[:-lag]
+            close = s.time[later] - s.time[earlier] <= params.duplicate_window
+            if not close.any():
+                break
+            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
+            fresh = alike & (leader[later] < 0)
+            leader[later[fresh]] = earlier[fresh]
+    found = duplicate_followers(s, params)
+    assert (found >= 0).sum() > 3 and np.array_equal(found, leader)
+
+
+def side_by_side(lane: list[int | None], vehicle_class: list[str | None]) -> Detections:
+    # Two reports of one sensor 0.2 s apart at one speed, and a second sensor's.
+    return Detections.from_columns(
+        position=[0.0, 0.0, 100.0],
+        velocity=[20.0, 20.2, 20.0],
+        timestamp=[0.0, 0.2, 5.0],
+        lane=[*lane, 0],
+        vehicle_class=[*vehicle_class, "car"],
+    )
+
+
+@pytest.mark.parametrize(
+    ("lane", "vehicle_class", "copy"),
+    [
+        ([0, 0], ["car", "car"], True),
+        ([0, 1], ["car", "car"], False),  # the next lane: another vehicle
+        ([0, 0], ["car", "truck"], False),  # another class: another vehicle
+        ([0, None], [None, "car"], True),  # what one of them does not report says nothing
+    ],
+)
+def test_a_copy_reads_the_same_lane_and_class(
+    lane: list[int | None], vehicle_class: list[str | None], copy: bool
+) -> None:
+    params = AssignmentParams()
+    leader = duplicate_followers(arrange(side_by_side(lane, vehicle_class), params), params)
+    assert leader.tolist() == ([-1, 0, -1] if copy else [-1, -1, -1])
+
+
+def test_a_copy_left_out_joins_its_twins_target_either_way_round() -> None:
+    # Reports 1 and 2 copy 0; 4 copies 3; 6 copies 5; 8 copies 7.
+    leader = np.array([-1, 0, 1, -1, 3, -1, 5, -1, 7])
+    target = np.array([4, -1, -1, -1, 2, 0, 1, -1, -1])
+    joined = join_duplicates(target, leader)
+    # 1 and 2 join 0's target (2 through 1); 3, left out, joins its copy's; 5 and 6 are two
+    # targets' and stay so; 7 and 8 are in none and stay out.
+    assert joined.tolist() == [4, 4, 4, 2, 2, 0, 1, -1, -1]
+    assert target.tolist() == [4, -1, -1, -1, 2, 0, 1, -1, -1]  # not changed in place
+
+
+def test_a_leader_left_out_joins_the_first_of_its_copies_in_a_target() -> None:
+    leader = np.array([-1, 0, 0])
+    assert join_duplicates(np.array([-1, 3, 5]), leader).tolist() == [3, 3, 5]
+
+
+def test_without_copies_the_targets_are_as_they_were() -> None:
+    target = np.array([0, -1, 1])
+    assert join_duplicates(target, np.full(3, -1)).tolist() == [0, -1, 1]
