@@ -19,6 +19,20 @@ clearly and mirror each other, by an offset too large for the learned biases to 
 smaller ones are the learned biases' (`weak_bias.clock_shifts`). The first and the last sensor
 have one neighbour each, and nothing to mirror: their clocks stay as they are, as does every
 sensor's where the road has fewer than three.
+
+A sensor installed some metres from the position the batch gives it shifts the travel times
+either side of it by those metres over each vehicle's speed, opposite ways: where traffic keeps
+one speed its lags mirror as a clock's would, and past the least offset it is set right as a
+clock (SUMO's dense motorway, five seeds, a middle sensor stated 100 m from where it is: set
+right by 3.1-3.8 s, 86 % against 92 % in place; what one offset leaves over, where speeds
+differ, is the learned biases'). Hence the warning names both.
+
+Offsets under the least are not searched for, though from about a second and a half up the
+learned biases miss some on dense traffic (a middle sensor 1.5 s early: 76 and 69 % on seeds 0
+and 1; stated 45 m off: 75 % over five seeds; 92 % as it should be): there the lags' histogram
+alone cannot tell a clock from the comb of neighbouring vehicles' headways. On the committed
+dense case, on time, the highest bins either side of one sensor sit 1.3 s off, opposite ways,
+and setting that sensor 1.3 s right cost 10 points.
 """
 
 from __future__ import annotations
@@ -111,7 +125,8 @@ def report_clock_offsets(positions: FloatArray, offsets: FloatArray | None) -> N
     for k in np.flatnonzero(offsets):
         LOG.warning(
             "the sensor at position %g stamps its detections %.1f s %s than the sensors "
-            "either side of it: its clock is off; its times were set right for the association",
+            "either side of it: its clock is off (or its position is); its times were set right "
+            "for the association",
             positions[k],
             abs(offsets[k]),
             "later" if offsets[k] > 0 else "earlier",
