@@ -1,6 +1,6 @@
 """The SUMO scenarios benchmarks/sumo_accuracy.py runs beyond the simulator's own
 (`roadlink.simulation.sumo.SUMO_SCENARIOS`, the "main" group): validation variants, speed-noise
-variants and the holdout queues, by group."""
+variants and the holdout queues and arterial, by group."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from roadlink.simulation.sumo import (
     SUMO_SCENARIOS,
     Bottleneck,
     DetectorFaults,
+    Signal,
     SumoScenario,
     mix,
     sumo_scenario,
@@ -175,7 +176,8 @@ VALIDATION: dict[str, SumoScenario] = {
 
 # Queues and faults simulated to judge the method, not to tune it (2026-11-27). The ho-* six were
 # used to find what fails (the window's edges, the segments' learning); the h2-* four were not
-# looked at until those changes were made. Change no default on their account.
+# looked at until those changes were made. h3-arterial3 (2026-11-28) judges what is done for
+# traffic lights (sumo-arterial). Change no default on their account.
 HOLDOUT: dict[str, SumoScenario] = {
     "ho-drop31": sumo_scenario(
         "sumo-freeflow",
@@ -284,6 +286,23 @@ HOLDOUT: dict[str, SumoScenario] = {
         warmup=600.0,
         duration=300.0,
         faults=DetectorFaults(miss_probability=0.04, false_alarm_rate=0.03, velocity_noise=0.05),
+    ),
+    "h3-arterial3": sumo_scenario(
+        "sumo-arterial",
+        description="3 lanes at 60 km/h, 1800 veh/h, 20 % trucks, sensors every 120 m, through "
+        "three fixed-time traffic lights of different cycles (60-78 s).",
+        lanes=3,
+        speed_limit=16.67,
+        demand=1800.0,
+        vehicles=mix(car=0.8, truck=0.2),
+        road_length=1800.0,
+        sensor_positions=[80.0 + 120.0 * i for i in range(14)],
+        signals=[
+            Signal(position=450.0, green=30.0, red=30.0),
+            Signal(position=1010.0, green=45.0, red=30.0, offset=35.0),
+            Signal(position=1500.0, green=35.0, red=40.0, offset=10.0),
+        ],
+        warmup=400.0,
     ),
 }
 

@@ -206,3 +206,15 @@ def lane_queue(seed: int = 0) -> Detections:
     return Detections.from_columns(
         position, velocity, timestamp, target=target, lane=lanes, length=lengths
     )
+
+
+def travel_times(d: Detections, a: float, b: float) -> np.ndarray:
+    """Each vehicle's travel time from the sensor at `a` to the one at `b`."""
+    at_a = {t: time for t, time, p in zip(d.target, d.timestamp, d.position, strict=True) if p == a}
+    return np.array(
+        [
+            time - at_a[t]
+            for t, time, p in zip(d.target, d.timestamp, d.position, strict=True)
+            if p == b and t in at_a
+        ]
+    )

@@ -67,3 +67,11 @@ def test_sumo_end_to_end_cli_writes_the_detection_csv(tmp_path):
     assert result.exit_code == 0, result.output
     d = read_detections_csv(out.read_text())
     assert len(d) > 100 and d.labelled.all()
+
+
+def test_the_help_names_the_extra_that_installs_sumo_and_the_roads_it_simulates():
+    # Rich reads "[sumo]" as markup unless escaped: the help once said "pip install 'roadlink'".
+    result = CliRunner().invoke(app, ["simulate-sumo", "--help"], terminal_width=120)
+    assert result.exit_code == 0
+    assert "pip install 'roadlink[sumo]'" in result.output
+    assert "traffic lights" in result.output and "sumo-arterial" in result.output

@@ -51,9 +51,10 @@ def simulate_sumo_command(
     ] = None,
     unlabelled: Annotated[bool, typer.Option(help="Leave the target column empty.")] = False,
 ) -> None:
-    """Simulate motorway traffic with Eclipse SUMO and write what its loop detectors saw as CSV.
+    """Simulate road traffic (motorways, queues, traffic lights) with Eclipse SUMO and write
+    what its loop detectors saw as CSV.
 
-    Needs SUMO: pip install 'roadlink[sumo]'. The target column holds SUMO's vehicle ids.
+    Needs SUMO: pip install 'roadlink\\[sumo]'. The target column holds SUMO's vehicle ids.
     """
     overrides: dict[str, object] = {}
     if duration is not None:

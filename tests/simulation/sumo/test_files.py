@@ -12,11 +12,13 @@ from roadlink.simulation import sumo
 from roadlink.simulation.sumo import (
     SUMO_SCENARIOS,
     Bottleneck,
+    Signal,
     detectors_xml,
     network_xml,
     parse_detector_output,
     road_segments,
     routes_xml,
+    signals_xml,
     sumo_scenario,
 )
 
@@ -100,6 +102,48 @@ def test_a_bottleneck_cuts_the_road_into_three_edges():
     nodes, edges = network_xml(scenario)
     assert nodes.count("<node ") == 4 and edges.count("<edge ") == 3
     assert 'route id="road" edges="e0 e1 e2"' in routes_xml(scenario)
+
+
+def test_a_signal_stands_at_a_traffic_light_junction_between_two_edges():
+    scenario = sumo_scenario(
+        "sumo-freeflow",
+        bottleneck=Bottleneck(start=2000.0, end=2600.0, lanes=1),
+        signals=[Signal(position=640.0), Signal(position=2300.0, green=30.0, offset=12.5)],
+    )
+    segments = road_segments(scenario)
+    assert [(s.start, s.end, s.lanes) for s in segments] == [
+        (0.0, 640.0, 3),
+        (640.0, 2000.0, 3),
+        (2000.0, 2300.0, 1),
+        (2300.0, 2600.0, 1),
+        (2600.0, 3000.0, 3),
+    ]
+    nodes, _ = network_xml(scenario)
+    assert nodes.count('type="traffic_light"') == 2
+    assert '<node id="n1" x="640.00" y="0.00" type="traffic_light"/>' in nodes
+    assert '<node id="n3" x="2300.00" y="0.00" type="traffic_light"/>' in nodes
+    # netconvert's own programmes (82 s green, 3 s amber, 5 s red), one link a lane.
+    net = (
+        '<net><tlLogic id="n1" type="static" programID="0" offset="0">'
+        '<phase duration="82" state="GGG"/><phase duration="3" state="yyy"/>'
+        '<phase duration="5" state="rrr"/></tlLogic>'
+        '<tlLogic id="n3" type="static" programID="0" offset="0">'
+        '<phase duration="82" state="G"/><phase duration="3" state="y"/>'
+        '<phase duration="5" state="r"/></tlLogic></net>'
+    )
+    xml = signals_xml(scenario, net)
+    assert xml.count("<tlLogic ") == 2 and 'programID="roadlink"' in xml
+    assert '<tlLogic id="n1" type="static" programID="roadlink" offset="0">' in xml
+    assert '<phase duration="40" state="GGG"/>' in xml
+    assert '<phase duration="35" state="rrr"/>' in xml
+    assert 'offset="12.5"' in xml and '<phase duration="30" state="G"/>' in xml
+    assert '<phase duration="3" state="y"/>' in xml
+
+
+def test_a_road_without_signals_has_no_traffic_light():
+    scenario = SUMO_SCENARIOS["sumo-freeflow"]
+    assert "traffic_light" not in network_xml(scenario)[0]
+    assert signals_xml(scenario, "<net/>") == "<additional>\n</additional>\n"
 
 
 def test_every_lane_at_every_sensor_has_a_loop_placed_on_the_lane_geometry():

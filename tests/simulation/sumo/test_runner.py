@@ -14,6 +14,7 @@ from roadlink.simulation.sumo import (
     sumo_scenario,
     with_detector_faults,
 )
+from tests.helpers import travel_times
 
 needs_sumo = pytest.mark.skipif(
     not sumo_available(), reason="Eclipse SUMO is not installed (pip install 'roadlink[sumo]')"
@@ -63,3 +64,14 @@ def test_sumo_end_to_end_gives_labelled_reproducible_tracks(tmp_path):
     np.testing.assert_array_equal(again.timestamp, d.timestamp)
     other = sumo.run_sumo(scenario, seed=4)
     assert len(other) != len(d) or not np.array_equal(other.timestamp, d.timestamp)
+
+
+@needs_sumo
+def test_traffic_lights_stop_the_vehicles_that_meet_red(tmp_path):
+    scenario = sumo_scenario("sumo-arterial", warmup=200.0, duration=160.0)
+    d = sumo.run_sumo(scenario, seed=1, workdir=tmp_path)
+    assert 'programID="roadlink"' in (tmp_path / "signals.add.xml").read_text()
+    free = travel_times(d, 100.0, 250.0)
+    lights = travel_times(d, 550.0, 700.0)  # the first signal stands at 640 m
+    assert np.percentile(lights, 90) > np.median(free) + 20.0
+    assert np.percentile(free, 90) < 1.5 * np.median(free)

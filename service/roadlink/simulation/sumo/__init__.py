@@ -30,6 +30,7 @@ from roadlink.simulation.sumo.files import (
     network_xml,
     parse_detector_output,
     routes_xml,
+    signals_xml,
 )
 from roadlink.simulation.sumo.runner import (
     INSTALL_HINT,
@@ -47,6 +48,7 @@ from roadlink.simulation.sumo.scenarios import (
     TRUCK,
     Bottleneck,
     RoadSegment,
+    Signal,
     SumoScenario,
     VehicleClass,
     mix,
@@ -64,6 +66,7 @@ __all__ = [
     "Bottleneck",
     "DetectorFaults",
     "RoadSegment",
+    "Signal",
     "SumoNotInstalledError",
     "SumoRunError",
     "SumoScenario",
@@ -78,6 +81,7 @@ __all__ = [
     "routes_xml",
     "run_sumo",
     "sensor_ids",
+    "signals_xml",
     "sumo_available",
     "sumo_home_candidates",
     "sumo_scenario",

@@ -9,6 +9,7 @@ from collections.abc import Mapping
 
 from roadlink.association.detections import Detections
 from roadlink.simulation.sumo.scenarios import (
+    YELLOW,
     SumoScenario,
     VehicleClass,
     road_segments,
@@ -30,16 +31,47 @@ EDGE_MARGIN = 0.5
 
 
 def network_xml(scenario: SumoScenario) -> tuple[str, str]:
-    """Plain nodes and edges XML of the road (for netconvert); the road runs along x from 0."""
+    """Plain nodes and edges XML of the road (for netconvert); the road runs along x from 0. A
+    signal's node is a traffic light (`signals_xml` gives its programme)."""
     segments = road_segments(scenario)
     xs = [segments[0].start] + [s.end for s in segments]
-    nodes = "".join(f'  <node id="n{k}" x="{x:.2f}" y="0.00"/>\n' for k, x in enumerate(xs))
+    lights = {signal.position for signal in scenario.signals}
+    nodes = "".join(
+        f'  <node id="n{k}" x="{x:.2f}" y="0.00"'
+        + (' type="traffic_light"' if x in lights else "")
+        + "/>\n"
+        for k, x in enumerate(xs)
+    )
     edges = "".join(
         f'  <edge id="{s.edge}" from="n{k}" to="n{k + 1}" numLanes="{s.lanes}" '
         f'speed="{s.speed_limit:.2f}"/>\n'
         for k, s in enumerate(segments)
     )
     return f"<nodes>\n{nodes}</nodes>\n", f"<edges>\n{edges}</edges>\n"
+
+
+def signals_xml(scenario: SumoScenario, net_xml: str) -> str:
+    """Each signal's fixed-time programme (green, YELLOW amber, red), replacing the one
+    netconvert made for its node (82 s green, 3 s amber, 5 s red): its links, one a lane, all
+    shown the same light. An additional file, loaded after the network."""
+    segments = road_segments(scenario)
+    node_of = {segment.end: f"n{k + 1}" for k, segment in enumerate(segments)}
+    links = {
+        tl.get("id"): len(tl.find("phase").get("state", ""))  # type: ignore[union-attr]
+        for tl in ET.fromstring(net_xml).iter("tlLogic")
+    }
+    lines = ["<additional>"]
+    for signal in scenario.signals:
+        node = node_of[signal.position]
+        n = links[node]
+        lines.append(
+            f'  <tlLogic id="{node}" type="static" programID="roadlink" offset="{signal.offset:g}">'
+        )
+        for duration, light in ((signal.green, "G"), (YELLOW, "y"), (signal.red, "r")):
+            lines.append(f'    <phase duration="{duration:g}" state="{light * n}"/>')
+        lines.append("  </tlLogic>")
+    lines.append("</additional>")
+    return "\n".join(lines) + "\n"
 
 
 def routes_xml(scenario: SumoScenario) -> str:

@@ -19,6 +19,7 @@ from roadlink.simulation.sumo.files import (
     network_xml,
     parse_detector_output,
     routes_xml,
+    signals_xml,
 )
 from roadlink.simulation.sumo.scenarios import SumoScenario, sensor_ids
 
@@ -95,11 +96,15 @@ def _run_in(home: Path, scenario: SumoScenario, seed: int, work: Path) -> Detect
     )
     net = (work / "road.net.xml").read_text()
     (work / "detectors.add.xml").write_text(detectors_xml(scenario, net, "detections.xml"))
+    additional = "detectors.add.xml"
+    if scenario.signals:
+        (work / "signals.add.xml").write_text(signals_xml(scenario, net))
+        additional += ",signals.add.xml"
     _call(
         home,
         "sumo",
         work,
-        *("-n", "road.net.xml", "-r", "road.rou.xml", "-a", "detectors.add.xml"),
+        *("-n", "road.net.xml", "-r", "road.rou.xml", "-a", additional),
         *("--begin", "0", "--end", f"{scenario.warmup + scenario.duration}"),
         *("--step-length", f"{scenario.step_length}", "--seed", str(seed)),
         *("--no-step-log", "--duration-log.disable", "--no-warnings"),

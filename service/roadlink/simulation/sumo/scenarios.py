@@ -96,6 +96,22 @@ class Bottleneck(BaseModel):
         return self
 
 
+class Signal(BaseModel):
+    """A fixed-time traffic light across the road: green, then YELLOW seconds of amber, then red,
+    over and over (the cycle starts `offset` seconds into the simulation)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    position: float = Field(gt=0, description="Where it stands (m from the road's start).")
+    green: float = Field(default=40.0, gt=0, description="Green time (s).")
+    red: float = Field(default=35.0, gt=0, description="Red time (s).")
+    offset: float = Field(default=0.0, ge=0, description="Seconds into the first cycle at 0.")
+
+
+# Amber between green and red (s), as at urban signals.
+YELLOW = 3.0
+
+
 class SumoScenario(BaseModel):
     """A straight road, its sensors, its traffic, and what the detectors get wrong."""
 
@@ -115,6 +131,9 @@ class SumoScenario(BaseModel):
         default_factory=lambda: mix(car=0.9, truck=0.1), min_length=1
     )
     bottleneck: Bottleneck | None = None
+    signals: list[Signal] = Field(
+        default_factory=list, description="Traffic lights across the road (an arterial)."
+    )
     warmup: float = Field(
         default=200.0, ge=0, description="Simulated time before detections are kept (s)."
     )
@@ -139,6 +158,11 @@ class SumoScenario(BaseModel):
             raise ValueError("sensor_positions must lie strictly inside the road")
         if self.bottleneck is not None and self.bottleneck.end >= self.road_length:
             raise ValueError("the bottleneck must end before the road does")
+        at = [signal.position for signal in self.signals]
+        if len(set(at)) != len(at) or any(x >= self.road_length for x in at):
+            raise ValueError("signals must stand at distinct positions inside the road")
+        if set(at) & set(positions):
+            raise ValueError("a signal cannot stand where a sensor does")
         return self
 
 
@@ -191,6 +215,19 @@ SUMO_SCENARIOS: dict[str, SumoScenario] = {
         warmup=500.0,
         duration=300.0,
     ),
+    "sumo-arterial": SumoScenario(
+        description="2 lanes at 50 km/h, 1200 veh/h, 10% trucks, sensors every 150 m, through "
+        "two fixed-time traffic lights (40 s green, 3 s amber, 35 s red; the second 20 s later): "
+        "one mid-segment, one 20 m past a sensor, whose queue reaches back over it.",
+        lanes=2,
+        speed_limit=13.89,
+        demand=1200.0,
+        road_length=2000.0,
+        sensor_positions=[100.0 + 150.0 * i for i in range(12)],
+        signals=[Signal(position=640.0), Signal(position=1320.0, offset=20.0)],
+        warmup=300.0,
+        duration=300.0,
+    ),
     "sumo-faulty": SumoScenario(
         description="sumo-dense seen by faulty detectors: 5% missed, 5% false alarms, 2% "
         "duplicated, speed error 3%, timestamp error 0.05 s.",
@@ -234,7 +271,8 @@ class RoadSegment:
 
 
 def road_segments(scenario: SumoScenario) -> list[RoadSegment]:
-    """The road cut into edges where the lane count or the speed limit changes."""
+    """The road cut into edges where the lane count or the speed limit changes, and at each
+    signal (a traffic light stands at a junction between two edges)."""
     neck = scenario.bottleneck
     normal = (scenario.lanes, scenario.speed_limit)
     if neck is None:
@@ -245,6 +283,16 @@ def road_segments(scenario: SumoScenario) -> list[RoadSegment]:
             (0.0, neck.start, *normal),
             (neck.start, neck.end, *narrow),
             (neck.end, scenario.road_length, *normal),
+        ]
+    for x in sorted(signal.position for signal in scenario.signals):
+        stretches = [
+            part
+            for start, end, lanes, speed in stretches
+            for part in (
+                [(start, x, lanes, speed), (x, end, lanes, speed)]
+                if start < x < end
+                else [(start, end, lanes, speed)]
+            )
         ]
     kept = [s for s in stretches if s[1] > s[0]]  # a bottleneck may start at 0
     return [RoadSegment(f"e{k}", *stretch) for k, stretch in enumerate(kept)]
