@@ -67,7 +67,8 @@ class TargetDetectionRead(BaseModel):
         le=1,
         description="The approximate probability that the link from the target's previous "
         "detection to this one is right (docs/assignment.md, Confidence). Absent on a target's "
-        "first detection, on unassigned ones, and from associators that group points rather "
+        "first detection, on a sensor's second report of one passage (a copy beside its twin, "
+        "linked by nothing), on unassigned ones, and from associators that group points rather "
         "than link them (K-means, the SVMs).",
     )
 
