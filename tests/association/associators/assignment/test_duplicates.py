@@ -4,6 +4,7 @@ copy joining its twin's target."""
 import numpy as np
 import pytest
 
+from roadlink.association import associate
 from roadlink.association.associators.assignment import AssignmentParams
 from roadlink.association.associators.assignment.duplicates import (
     duplicate_followers,
@@ -101,3 +102,23 @@ def test_a_leader_left_out_joins_the_first_of_its_copies_in_a_target() -> None:
 def test_without_copies_the_targets_are_as_they_were() -> None:
     target = np.array([0, -1, 1])
     assert join_duplicates(target, np.full(3, -1)).tolist() == [0, -1, 1]
+
+
+def test_a_copy_in_a_target_is_reported_beside_its_twin_without_a_link_of_its_own() -> None:
+    d = simulate(preset("medium", duplicate_probability=0.1), seed=5).detections
+    result = associate(d, "assignment")
+    targets = result.to_dict()["targets"]
+    with_copy = [
+        t for t in targets if len({x["sensor_id"] for x in t["detections"]}) < len(t["detections"])
+    ]
+    assert with_copy
+    for target in with_copy:
+        rows = target["detections"]
+        linked = [x["link_confidence"] for x in rows if "link_confidence" in x]
+        # One link into each sensor but the first, whatever the copies; the target's confidence
+        # is the product of those links alone.
+        assert len(linked) == len({x["sensor_id"] for x in rows}) - 1
+        assert target["confidence"] == pytest.approx(float(np.prod(linked)))
+    # The matrix lists a copy beside its twin in one cell, its link confidence empty.
+    cells = [line for line in result.to_matrix_csv().splitlines()[1:] if ";" in line]
+    assert len(cells) == len(with_copy)
