@@ -1,7 +1,10 @@
 """A prior bias that stands out too weakly on its own, confirmed by matching and kept where a
 sensor's clock explains it (`assignment/weak_bias.py`): on SUMO's dense motorway (the committed
 seed-0 case) whose middle sensor's clock runs 2 s late; nowhere a bump a headway off (a queue's
-shifted alignment) or a weak bias that no neighbouring segment mirrors."""
+shifted alignment) or a weak bias that no neighbouring segment mirrors.
+
+`clocks` sets a clock 2 s off right before the prior sees it; the tests of the prior's own
+check turn that off (`unchecked_clocks`), as for an offset `clocks` does not take."""
 
 from __future__ import annotations
 
@@ -12,7 +15,7 @@ import numpy as np
 import pytest
 
 from roadlink.association import associate
-from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment import AssignmentParams, clocks
 from roadlink.association.associators.assignment.params import PRIOR_SIGNIFICANCE
 from roadlink.association.associators.assignment.prior import (
     CandidatePairs,
@@ -38,6 +41,13 @@ def dense(late: float = 0.0) -> Detections:
     return dataclasses.replace(d, timestamp=timestamp)
 
 
+@pytest.fixture
+def unchecked_clocks(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Arranging sets no clock right."""
+    monkeypatch.setattr(clocks, "clock_offsets", lambda positions, *_: np.zeros(positions.size))
+
+
+@pytest.mark.usefixtures("unchecked_clocks")
 def test_a_late_clock_is_a_weak_bump_that_matching_confirms():
     s = arrange(dense(LATE).without_labels(), PARAMS)
     pairs = CandidatePairs.within_reach(s, s.members(MIDDLE - 1), MIDDLE)
@@ -54,6 +64,7 @@ def test_a_late_clock_is_a_weak_bump_that_matching_confirms():
     assert kept == 0.0 and weak is not None and abs(weak - np.log(10.0 / 8.0)) < 0.05
 
 
+@pytest.mark.usefixtures("unchecked_clocks")
 def test_the_late_clocks_segments_get_their_biases_and_the_others_none():
     late = segment_prior(arrange(dense(LATE).without_labels(), PARAMS), 3, PARAMS).log_bias[:, 1]
     assert late[MIDDLE - 1] > 0.15 and late[MIDDLE] < -0.15
@@ -62,6 +73,7 @@ def test_the_late_clocks_segments_get_their_biases_and_the_others_none():
     assert np.all(punctual.log_bias[:, 1] == 0.0)
 
 
+@pytest.mark.usefixtures("unchecked_clocks")
 def test_dense_traffic_past_a_late_clock_is_associated_nearly_as_without_it():
     """Measured 68.2 % when the prior kept the kinematic prediction on the segment into the late
     sensor (4 % of its links right: shifted by a vehicle), 94.7 % now; 95.4 % on time."""
