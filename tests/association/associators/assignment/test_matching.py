@@ -6,11 +6,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from roadlink.association.associators.assignment.matching import (
     SURE_MARGIN,
     _match_dense,
     match,
+    matched_cost,
     sure_matchings,
 )
 
@@ -202,3 +204,14 @@ def test_sure_matchings_of_far_apart_ids_are_those_of_the_ids_renumbered() -> No
     near = sure_matchings(left, right, cost, group, chosen, 10.0, groups)
     far = sure_matchings(left + 10**6 * group, right + 7 * 10**5, cost, group, chosen, 10.0, groups)
     assert np.array_equal(near, far) and 0 < near.sum() < groups
+
+
+def test_the_matched_cost_is_the_chosen_edges_and_half_a_gate_for_each_node_alone():
+    left, right = np.array([0, 0, 1, 1, 2]), np.array([10, 11, 10, 11, 12])
+    cost = np.array([1.0, 4.0, 3.0, 0.5, 30.0])
+    # Edges 0-10 and 1-11 are taken (1.5); 2 and 12 stay alone (edge 30 > gate 20): 2 x 10.
+    assert matched_cost(left, right, cost, 20.0) == pytest.approx(1.5 + 20.0)
+    # The swap, made cheaper, is taken instead.
+    swapped = np.array([5.0, 0.2, 0.1, 5.0, 30.0])
+    assert matched_cost(left, right, swapped, 20.0) == pytest.approx(0.3 + 20.0)
+    assert matched_cost(left[:0], right[:0], cost[:0], 20.0) == 0.0

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from roadlink.association.associators.assignment.matching import match
+from roadlink.association.associators.assignment.matching import matched_cost
 from roadlink.association.associators.assignment.sensors import travel_time
 from roadlink.association.detections import FloatArray, IntArray
 
@@ -118,13 +118,14 @@ def clock_offsets(
     )
     lags = road.lags(list(range(n - 1)))
     for _ in range(n - 2):
-        candidates = {k: mirrored(lags[k - 1], lags[k]) for k in range(1, n - 1)}
-        found = {
-            k: offset
-            for k, offset in candidates.items()
-            if offset is not None
-            and (clear(lags[k - 1], lags[k], offset) or road.confirms(k, offset))
-        }
+        found = {}
+        for k in range(1, n - 1):
+            into, out_of = lags[k - 1], lags[k]
+            offset = mirrored(into, out_of)
+            if into is None or out_of is None or offset is None:
+                continue
+            if clear(into, out_of, offset) or road.confirms(k, offset):
+                found[k] = offset
         if not found:
             break
         k = max(found, key=lambda j: abs(found[j]))
@@ -164,10 +165,9 @@ def mirrored(into: Lag | None, out_of: Lag | None) -> float | None:
     return offset
 
 
-def clear(into: Lag | None, out_of: Lag | None, offset: float) -> bool:
+def clear(into: Lag, out_of: Lag, offset: float) -> bool:
     """Whether an offset is large enough to set right on the lags alone: CLOCK_LEAST_SHARE of
     the segments' typical travel time."""
-    assert into is not None and out_of is not None
     return abs(offset) >= CLOCK_LEAST_SHARE * min(into.typical, out_of.typical)
 
 
@@ -214,17 +214,18 @@ class Road:
             gathered = self._gathered(segment)
             if gathered is None:
                 return False
-            pairs, width = gathered.detail(self.speeds[segment], self.speeds[segment + 1])
-            spread = CLOCK_CONFIRM_TIME * width
-            window = 3.0 * width
+            lags, width = gathered.pairs.lags, gathered.pairs.width
+            change = gathered.speed_change(self.speeds[segment], self.speeds[segment + 1])
             shift = sign * offset
-            near = (np.abs(pairs.lags) <= window) | (np.abs(pairs.lags - shift) <= window)
-            left, right, lags = pairs.near[near], pairs.far[near], pairs.lags[near]
-            speed_cost = np.square(pairs.speed_change[near] / CLOCK_CONFIRM_SPEED)
-            on_time = np.square(lags / spread) + speed_cost
-            shifted = np.square((lags - shift) / spread) + speed_cost
-            saving += _matched_cost(left, right, on_time) - _matched_cost(left, right, shifted)
-            count += int(np.unique(pairs.near).size)
+            window = 3.0 * width
+            near = (np.abs(lags) <= window) | (np.abs(lags - shift) <= window)
+            left, right, lags = gathered.which[near], gathered.at[near], lags[near]
+            speed_cost = np.square(change[near] / CLOCK_CONFIRM_SPEED)
+            spread = CLOCK_CONFIRM_TIME * width
+            costs = [np.square((lags - centre) / spread) + speed_cost for centre in (0.0, shift)]
+            on_time, shifted = (matched_cost(left, right, c, CLOCK_CONFIRM_GATE) for c in costs)
+            saving += on_time - shifted
+            count += int(np.unique(gathered.which).size)
         return saving >= CLOCK_CONFIRM_SAVING * count
 
     def _pairs(self, k: int) -> SegmentPairs | None:
@@ -266,24 +267,13 @@ class Gathered:
     at: IntArray
     near_speed: FloatArray
 
-    def detail(self, near_all: FloatArray, far_all: FloatArray) -> tuple[PairDetail, float]:
-        """The pairs as `Road.confirms` matches them (each reading's log speed against its
-        sensor's median, of all its speeds `near_all` and `far_all`: the change a vehicle's
-        own speed makes between the two sensors is near 0), and the histogram's bin width."""
-        change = np.log(far_all[self.at] / np.median(far_all)) - np.log(
+    def speed_change(self, near_all: FloatArray, far_all: FloatArray) -> FloatArray:
+        """Each pair's change of log speed, each reading against its sensor's median (of all
+        its speeds, `near_all` and `far_all`): near 0 for a vehicle's own two readings."""
+        change: FloatArray = np.log(far_all[self.at] / np.median(far_all)) - np.log(
             self.near_speed[self.which] / np.median(near_all)
         )
-        return PairDetail(self.which, self.at, self.pairs.lags, change), self.pairs.width
-
-
-@dataclass(frozen=True)
-class PairDetail:
-    """Pairs to match: each one's near and far detection, lag (s) and speed change."""
-
-    near: IntArray
-    far: IntArray
-    lags: FloatArray
-    speed_change: FloatArray
+        return change
 
 
 @dataclass(frozen=True)
@@ -295,18 +285,6 @@ class SegmentPairs:
     reach: float
     width: float
     typical: float
-
-
-def _matched_cost(left: IntArray, right: IntArray, cost: FloatArray) -> float:
-    """The cost of the cheapest matching of the pairs, each detection left alone costing half
-    of CLOCK_CONFIRM_GATE."""
-    if left.size == 0:
-        return 0.0
-    linked_left, linked_right = match(left, right, cost, CLOCK_CONFIRM_GATE)
-    stride = int(right.max()) + 1  # each (left, right) pair once: a key per edge
-    taken = np.isin(left * stride + right, linked_left * stride + linked_right)
-    alone = np.unique(left).size + np.unique(right).size - 2 * linked_left.size
-    return float(cost[taken].sum()) + CLOCK_CONFIRM_GATE / 2 * alone
 
 
 def _peak(pairs: SegmentPairs, histogram: npt.NDArray[np.int64]) -> Lag | None:

@@ -109,6 +109,22 @@ SURE_MARGIN = 8.0 / COST_QUANTUM_INVERSE
 SURE_TABLE = 16  # `sure_matchings`' nodes by id up to this many times as many as its edges
 
 
+def matched_cost(left: Nodes, right: Nodes, cost: Costs, gate: float) -> float:
+    """The cost of the cheapest matching of the (left, right) edges (each pair of nodes once),
+    each node left alone costing half the gate: two costings of the same edges compare by their
+    matched edges' savings alone."""
+    linked_left, linked_right = match(left, right, cost, gate)
+    taken = np.zeros(left.size, dtype=bool)
+    if linked_left.size:
+        # Each node is matched at most once: an edge is taken where its left node's partner is
+        # its right one.
+        by_left = np.argsort(linked_left)
+        at = np.minimum(np.searchsorted(linked_left[by_left], left), linked_left.size - 1)
+        taken = (linked_left[by_left][at] == left) & (linked_right[by_left][at] == right)
+    alone = np.unique(left).size + np.unique(right).size - 2 * linked_left.size
+    return float(cost[taken].sum()) + gate / 2 * alone
+
+
 def sure_matchings(
     left: Nodes, right: Nodes, cost: Costs, group: Nodes, chosen: Mask, gate: float, groups: int
 ) -> Mask:

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from roadlink.association.associators.assignment.matching import match
+from roadlink.association.associators.assignment.matching import matched_cost
 from roadlink.association.associators.assignment.sensors import travel_time
 
 # What matching under a weaker bump's bias must save a sampled detection, against the kinematic
@@ -69,7 +69,7 @@ def confirmed_bias(pairs: CandidatePairs, bump: float, params: AssignmentParams)
 
     def cost_at(centre: float) -> float:
         cost = np.square((error - centre) / params.travel_time_spread) + speed_cost
-        return _matched_cost(pa, pb, cost, params.gate_cost)
+        return matched_cost(pa, pb, cost, params.gate_cost)
 
     costs = [cost_at(float(bias)) for bias in biases]
     best = int(np.argmin(costs))
@@ -97,21 +97,6 @@ def _inside_under(
         inside &= (arrival >= far_times[0]) & (arrival <= far_times[-1])
         inside &= (passage >= near_times[0]) & (passage <= near_times[-1])
     return inside
-
-
-def _matched_cost(pa: np.ndarray, pb: np.ndarray, cost: np.ndarray, gate: float) -> float:
-    """The cost of the cheapest matching of the (pa, pb) pairs, each detection left alone
-    costing half the gate (so only the matched pairs' savings differ between two costings)."""
-    left, right = match(pa, pb, cost, gate)
-    taken = np.zeros(pa.size, dtype=bool)
-    if left.size:
-        # Each detection is matched at most once: a pair is taken where its near detection's
-        # partner is its far one.
-        by_left = np.argsort(left)
-        at = np.minimum(np.searchsorted(left[by_left], pa), left.size - 1)
-        taken = (left[by_left][at] == pa) & (right[by_left][at] == pb)
-    alone = np.unique(pa).size + np.unique(pb).size - 2 * left.size
-    return float(cost[taken].sum()) + gate / 2 * alone
 
 
 def clock_shifts(
