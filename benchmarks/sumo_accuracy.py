@@ -327,7 +327,7 @@ def main() -> None:
                 "clock": args.clock,
                 "timeout_seconds": args.timeout,
                 "scenarios": {
-                    name: {"description": known[name].description, "cases": sizes[name]}
+                    name: {"description": EVERY_SCENARIO[name].description, "cases": sizes[name]}
                     for name in args.scenarios
                 },
                 "rows": rows,

@@ -287,6 +287,17 @@ HOLDOUT: dict[str, SumoScenario] = {
         duration=300.0,
         faults=DetectorFaults(miss_probability=0.04, false_alarm_rate=0.03, velocity_noise=0.05),
     ),
+    "h4-urban-bias": sumo_scenario(
+        "sumo-freeflow",
+        description="2 lanes at 50 km/h, 2400 veh/h, sensors 80-200 m apart, each loop's speeds "
+        "off by a factor of its own (8 %, lognormal) and read with a 4 % error.",
+        lanes=2,
+        speed_limit=13.89,
+        demand=2400.0,
+        road_length=1500.0,
+        sensor_positions=_spaced(100.0, [80, 200, 120, 150, 90, 180, 110, 160, 130]),
+        faults=DetectorFaults(velocity_bias=0.08, velocity_noise=0.04),
+    ),
     "h3-arterial3": sumo_scenario(
         "sumo-arterial",
         description="3 lanes at 60 km/h, 1800 veh/h, 20 % trucks, sensors every 120 m, through "
@@ -308,15 +319,27 @@ HOLDOUT: dict[str, SumoScenario] = {
 
 
 # Loops measure speed with an error: a dual loop times the vehicle between its two loops (a few
-# per cent), a single loop infers speed from occupancy and an assumed vehicle length (far more).
+# per cent), a single loop infers speed from occupancy and an assumed vehicle length (far more),
+# and that length, set per loop, makes each loop's speeds off by a factor of its own (`-bias`).
 SPEED_NOISE: dict[str, SumoScenario] = {
-    f"{base}-speed{round(100 * noise)}": sumo_scenario(
-        base,
-        description=f"{base}, speeds measured with a {noise:.0%} error (std), no other fault.",
-        faults=DetectorFaults(velocity_noise=noise),
-    )
-    for base in ("sumo-freeflow", "sumo-dense")
-    for noise in (0.03, 0.06, 0.10)
+    **{
+        f"{base}-speed{round(100 * noise)}": sumo_scenario(
+            base,
+            description=f"{base}, speeds measured with a {noise:.0%} error (std), no other fault.",
+            faults=DetectorFaults(velocity_noise=noise),
+        )
+        for base in ("sumo-freeflow", "sumo-dense")
+        for noise in (0.03, 0.06, 0.10)
+    },
+    **{
+        f"{base}-bias10": sumo_scenario(
+            base,
+            description=f"{base}, each sensor's speeds off by a factor of its own (lognormal, "
+            "10 % std), no other fault.",
+            faults=DetectorFaults(velocity_bias=0.1),
+        )
+        for base in ("sumo-freeflow", "sumo-dense", "sumo-irregular")
+    },
 }
 SCENARIO_GROUPS = {
     "main": SUMO_SCENARIOS,

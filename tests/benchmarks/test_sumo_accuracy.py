@@ -1,6 +1,8 @@
 """benchmarks/sumo_accuracy.py: its scenario groups, and that the speed-noise variants add a
 speed error and nothing else."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -19,11 +21,12 @@ def test_every_scenario_name_belongs_to_one_group():
 def test_the_speed_noise_variants_change_the_speed_error_alone():
     assert set(bench.SPEED_NOISE) == {
         f"sumo-{base}-speed{percent}" for base in ("freeflow", "dense") for percent in (3, 6, 10)
-    }
+    } | {f"sumo-{base}-bias10" for base in ("freeflow", "dense", "irregular")}
     for name, scenario in bench.SPEED_NOISE.items():
-        base_name, _, noise = name.rpartition("-speed")
+        base_name, kind, percent = re.fullmatch(r"(.+)-(speed|bias)(\d+)", name).groups()
         base = SUMO_SCENARIOS[base_name]
-        assert scenario.faults == DetectorFaults(velocity_noise=int(noise) / 100)
+        error = {"speed": "velocity_noise", "bias": "velocity_bias"}[kind]
+        assert scenario.faults == DetectorFaults(**{error: int(percent) / 100})
         changed = {
             field
             for field in type(scenario).model_fields

@@ -73,6 +73,30 @@ def test_noise_is_multiplicative_on_speed_and_additive_on_time():
     assert np.std(out.time - clean.time) == pytest.approx(0.1, rel=0.05)
 
 
+def test_a_speed_bias_is_one_factor_a_sensor():
+    clean = Passages(
+        sensor=np.repeat(np.arange(400), 5),
+        time=np.tile(np.arange(5.0), 400),
+        speed=np.full(2000, 25.0),
+        target=np.tile(np.arange(5), 400),
+    )
+
+    def faulty(**faults: float) -> Passages:
+        return apply_detector_faults(
+            clean,
+            DetectorFaults(**faults),
+            np.random.default_rng(3),
+            false_alarm_speeds=_constant(1.0),
+            clutter=-1,
+        )
+
+    log_factor = np.log(faulty(velocity_bias=0.1, timestamp_noise=0.1).speed / 25.0)
+    per_sensor = log_factor.reshape(400, 5)
+    assert np.ptp(per_sensor, axis=1).max() < 1e-12  # every speed of a sensor alike
+    assert np.std(per_sensor[:, 0]) == pytest.approx(0.1, rel=0.1)
+    assert np.array_equal(faulty(velocity_bias=0.0).speed, clean.speed)
+
+
 def _with_features(passages: Passages) -> Passages:
     n = passages.time.size
     vehicle = passages.target % 3  # three kinds of vehicle, one lane each

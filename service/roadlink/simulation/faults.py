@@ -54,6 +54,14 @@ class DetectorFaults(BaseModel):
     velocity_noise: float = Field(
         default=0.0, ge=0, le=1, description="Velocity measurement error (std, share of velocity)."
     )
+    velocity_bias: float = Field(
+        default=0.0,
+        ge=0,
+        le=1,
+        description="Each sensor's calibration error: every speed it reports is off by one "
+        "factor of its own, lognormal with this std of its log (single loops, which infer "
+        "speed from an assumed vehicle length: 5-15 %).",
+    )
     timestamp_noise: float = Field(
         default=0.0, ge=0, description="Timestamp measurement error (std, seconds)."
     )
@@ -127,6 +135,11 @@ def _measurement_noise(
     speed, time, length = passages.speed, passages.time, passages.length
     if faults.velocity_noise:
         speed = speed * np.exp(faults.velocity_noise * rng.standard_normal(speed.size))
+    if faults.velocity_bias:
+        # One factor a sensor, drawn only when asked for, so other faults draw as before.
+        n_sensors = int(passages.sensor.max(initial=-1)) + 1
+        factors = np.exp(faults.velocity_bias * rng.standard_normal(n_sensors))
+        speed = speed * factors[passages.sensor]
     if faults.timestamp_noise:
         time = time + faults.timestamp_noise * rng.standard_normal(time.size)
     if faults.length_noise and not np.isnan(length).all():
