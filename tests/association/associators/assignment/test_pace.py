@@ -4,6 +4,8 @@ keeps its track's pace costing less than one that breaks it."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -75,8 +77,30 @@ def test_the_reading_error_is_read_off_consecutive_speed_changes(error):
     ((a, b),) = true_links(s, track)[0]
     prv = successors(s, track)[1]
     follows = prv[a] >= 0
-    estimate = reading_error(s, prv[a[follows]], a[follows], b[follows])
+    no_change = np.zeros((POSITIONS.size, 2))
+    estimate = reading_error(s, no_change, prv[a[follows]], a[follows], b[follows])
     assert estimate == pytest.approx(error, rel=0.2)
+
+
+@pytest.mark.parametrize("error", [0.0, 0.06])
+def test_a_sensors_calibration_is_no_reading_error(error):
+    """Every other sensor reads every speed 10 % high: the speed changes either side of it
+    shift opposite ways by its bias, which read as they are look like a 10 % error of every
+    reading. About their segments' mean changes, the readings' own error is what is read."""
+    d, track = wandering_vehicles(300, error)
+    calibration = np.where(np.searchsorted(POSITIONS, d.position) % 2 == 0, 1.1, 1.0)
+    s = arrange(dataclasses.replace(d, velocity=d.velocity * calibration), PARAMS)
+    ((a, b),) = true_links(s, track)[0]
+    no_change = np.zeros((POSITIONS.size, 2))
+    mean_change = no_change.copy()
+    change = s.log_speed[b] - s.log_speed[a]
+    for p in range(POSITIONS.size - 1):
+        mean_change[p, 1] = np.median(change[s.sensor[a] == p])
+    prv = successors(s, track)[1]
+    follows = prv[a] >= 0
+    h, a, b = prv[a[follows]], a[follows], b[follows]
+    assert reading_error(s, no_change, h, a, b) > 0.08 + error / 2  # as read
+    assert reading_error(s, mean_change, h, a, b) == pytest.approx(error, abs=0.015)
 
 
 def test_exact_speeds_are_trusted_and_no_pace_is_learned():

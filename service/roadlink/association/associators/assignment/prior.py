@@ -33,7 +33,11 @@ from roadlink.association.associators.assignment.sensors import (
     Sensors,
     travel_time,
 )
-from roadlink.association.associators.assignment.weak_bias import clock_shifts, confirmed_bias
+from roadlink.association.associators.assignment.weak_bias import (
+    clock_shifts,
+    confirmed_bias,
+    scale_echoes,
+)
 from roadlink.association.detections import FloatArray, IntArray
 
 BoolArray = npt.NDArray[np.bool_]
@@ -85,7 +89,9 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
         return travel_time(s.positions[p + span] - s.positions[p], medians[p], medians[p + span])
 
     one_segment = kinematic(1)
-    for segment, bias in clock_shifts(weak, log_bias[:-1, 1], one_segment).items():
+    explained = clock_shifts(weak, log_bias[:-1, 1], one_segment)
+    explained.update(scale_echoes(weak, log_bias[:-1, 1]))
+    for segment, bias in explained.items():
         log_bias[segment, 1] = bias
     typical = np.exp(log_bias[:-1, 1]) * one_segment
     total = typical

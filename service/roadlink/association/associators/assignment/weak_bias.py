@@ -1,5 +1,6 @@
 """A segment's prior bias that the pairs' histogram shows too weakly to stand on its own,
-checked by matching the detections under it, and kept where a sensor's clock explains it.
+checked by matching the detections under it, and kept where a sensor's clock or its speeds'
+calibration explains it.
 
 The prior (`prior.travel_time_bumps`) keeps the kinematic prediction unless another bias holds
 clearly more pairs than the kinematic prediction's own bin, since in a queue the highest bump is
@@ -38,6 +39,11 @@ WEAK_BIAS_STEPS = 11
 # A neighbouring segment mirrors a weak bias where its shift in seconds is the opposite of the
 # weak one's within this factor (a clock 2 s late: +1.7 s into the sensor, -1.9 s out of it).
 CLOCK_MIRROR = 1.5
+# A neighbouring segment echoes a weak bias where its log bias has the same sign and is within
+# this factor of it: a sensor that reads speeds k times too high shortens the kinematic
+# prediction of both its segments by the same factor, 1 / ((1 + 1 / k) / 2), and the other
+# ends' sensors' own calibration moves each by its own (10 % per sensor, lognormal: 1.2-1.8x).
+SCALE_ECHO = 2.0
 
 if TYPE_CHECKING:
     from roadlink.association.associators.assignment.params import AssignmentParams
@@ -118,5 +124,27 @@ def clock_shifts(
             other = shift.get(q, float(seconds[q] * np.expm1(biases[q])))
             ratio = -other / shift[p] if shift[p] != 0 else 0.0
             if 1 / CLOCK_MIRROR <= ratio <= CLOCK_MIRROR:
+                kept[p] = bias
+    return kept
+
+
+def scale_echoes(weak: dict[int, float], biases: FloatArray) -> dict[int, float]:
+    """Of the confirmed weak biases `weak` (by segment), those that a neighbouring segment's
+    bias (`biases`, or its own weak one) echoes: the same sign, within `SCALE_ECHO` of it.
+    That is what a sensor whose speeds read some factor off (a loop's calibration, a sensor
+    set to km/h among sensors in m/s) does to the segments either side of it: the kinematic
+    prediction of both is off by about that factor's half, the same way. Left alone, the
+    learning locked onto links shifted by a vehicle (SUMO's dense motorway, one sensor in km/h:
+    the segment after it 0 % right, 66 % of the vehicles; every sensor's speeds off by a
+    lognormal 10 %: 0 % on the segment whose ends both read 20 % high). A slow zone's or a
+    traffic light's weak bias has no such echo (their neighbours keep the kinematic
+    prediction), and kept there it cost 1 to 1.4 points."""
+    kept: dict[int, float] = {}
+    for p, bias in weak.items():
+        for q in (p - 1, p + 1):
+            if not 0 <= q < biases.size or bias == 0:
+                continue
+            ratio = weak.get(q, float(biases[q])) / bias
+            if 1 / SCALE_ECHO <= ratio <= SCALE_ECHO:
                 kept[p] = bias
     return kept
