@@ -5,6 +5,7 @@ import json
 import subprocess
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -245,22 +246,41 @@ def test_work_beside_the_association_sees_the_detections_and_its_errors_surface(
         analysis.associate_file(small_csv, "assignment", [], broken)
 
 
-def test_associate_names_a_sensor_whose_clock_is_off_on_stderr(tmp_path):
-    """The association sets the clock right (`assignment/clocks.py`); the command says which
-    sensor it was, in a process of its own, as a user runs it."""
-    dense = read_detections_csv(Path(__file__).parents[1] / "data" / "sumo" / "sumo-dense.csv")
+DENSE = Path(__file__).parents[1] / "data" / "sumo" / "sumo-dense.csv"
+
+
+def associate_with_middle_sensor_off(
+    tmp_path: Path, column: str, change: Callable[[np.ndarray], np.ndarray]
+) -> tuple[float, subprocess.CompletedProcess[str]]:
+    """`roadlink associate` on the committed dense case with the middle sensor's `column`
+    changed, in a process of its own, as a user runs it: the sensor's position and the run."""
+    dense = read_detections_csv(DENSE)
     middle = np.unique(dense.position)[5]
-    late = dataclasses.replace(
-        dense, timestamp=dense.timestamp + np.where(dense.position == middle, 20.0, 0.0)
-    )
-    path = tmp_path / "late.csv"
-    path.write_text(write_detections_csv(late))
+    at_middle = dense.position == middle
+    values = getattr(dense, column).copy()
+    values[at_middle] = change(values[at_middle])
+    path = tmp_path / "off.csv"
+    path.write_text(write_detections_csv(dataclasses.replace(dense, **{column: values})))
     out = subprocess.run(
         [sys.executable, "-m", "roadlink.cli", "associate", str(path)],
         capture_output=True,
         text=True,
     )
     assert out.returncode == 0, out.stderr
+    assert "accuracy" in out.stdout
+    return float(middle), out
+
+
+def test_associate_names_a_sensor_reporting_km_per_hour_on_stderr(tmp_path):
+    """Among sensors in m/s, one sends km/h; the command says which (`assignment/weak_bias.py`)."""
+    middle, out = associate_with_middle_sensor_off(tmp_path, "velocity", lambda v: v * 3.6)
+    assert f"the sensor at position {middle:g} reads speeds about 3." in out.stderr
+    assert "its speed calibration or unit is off" in out.stderr
+
+
+def test_associate_names_a_sensor_whose_clock_is_off_on_stderr(tmp_path):
+    """The association sets the clock right (`assignment/clocks.py`); the command says which
+    sensor it was."""
+    middle, out = associate_with_middle_sensor_off(tmp_path, "timestamp", lambda t: t + 20.0)
     assert f"the sensor at position {middle:g} stamps its detections" in out.stderr
     assert "s later than the sensors either side of it" in out.stderr
-    assert "accuracy" in out.stdout

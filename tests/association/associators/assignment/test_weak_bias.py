@@ -15,7 +15,11 @@ import numpy as np
 import pytest
 
 from roadlink.association import associate
-from roadlink.association.associators.assignment import AssignmentParams, clocks
+from roadlink.association.associators.assignment import (
+    AssignmentAssociator,
+    AssignmentParams,
+    clocks,
+)
 from roadlink.association.associators.assignment.params import PRIOR_SIGNIFICANCE
 from roadlink.association.associators.assignment.prior import (
     CandidatePairs,
@@ -27,6 +31,7 @@ from roadlink.association.associators.assignment.weak_bias import (
     clock_shifts,
     confirmed_bias,
     scale_echoes,
+    speed_factors,
 )
 from roadlink.association.csvio import read_detections_csv
 from roadlink.association.detections import Detections
@@ -155,3 +160,30 @@ def test_dense_traffic_past_a_sensor_in_km_per_hour_is_associated_as_without_it(
     km_h = associate(in_km_per_hour(5), "assignment").metrics
     assert plain is not None and km_h is not None
     assert km_h.accuracy >= 0.93 and plain.accuracy - km_h.accuracy < 0.015
+
+
+def test_a_sensors_speed_factor_is_read_off_the_biases_its_segments_echo():
+    def bias(k: float) -> float:  # both segments of a sensor reading k times the speed
+        return float(-np.log((1.0 + 1.0 / k) / 2.0))
+
+    factor = speed_factors(np.array([0.0, bias(3.6), bias(3.6), 0.0, bias(0.8), bias(0.8) * 0.7]))
+    assert factor[[0, 1, 3, 4, 6]] == pytest.approx(1.0)
+    assert factor[2] == pytest.approx(3.6)
+    assert 0.8 < factor[5] < 0.9  # its other ends' own calibration: the mean of the two
+    # No echo (one side alone, or opposite signs: a clock), and the road's ends: 1.
+    assert np.all(speed_factors(np.array([bias(2.0), 0.0, bias(2.0), -bias(2.0)])) == 1.0)
+
+
+def test_a_sensor_in_km_per_hour_is_named_for_its_detectors_owner(caplog):
+    logger = "roadlink.association.associators.assignment.weak_bias"
+    with caplog.at_level("WARNING", logger=logger):
+        AssignmentAssociator().group(in_km_per_hour(5).without_labels())
+    position = np.unique(read_detections_csv(DENSE).position)[5]
+    (record,) = caplog.records
+    assert record.getMessage().startswith(
+        f"the sensor at position {position:g} reads speeds about 3."
+    )
+    caplog.clear()
+    with caplog.at_level("WARNING", logger=logger):
+        AssignmentAssociator().group(dense().without_labels())
+    assert not caplog.records

@@ -37,6 +37,7 @@ from roadlink.association.associators.assignment.tracks import (
     SweepSetup,
     build_tracks,
 )
+from roadlink.association.associators.assignment.weak_bias import report_speed_factors
 from roadlink.association.associators.base import Associator, Progress
 from roadlink.association.detections import Detections, FloatArray, IntArray
 
@@ -68,6 +69,7 @@ class AssignmentAssociator(Associator):
         params = within_time_scale(self.params, s.typical_travel_time())
         self.effective_params = params
         prior = segment_prior(s, params.max_skip + 1, params)
+        report_speed_factors(s.positions, prior.log_bias[:-1, 1])
         # Every pass (a linking round or a re-pairing sweep) visits each sensor once and costs
         # about the same: progress is the share of passes done.
         rounds = params.em_rounds + 1
