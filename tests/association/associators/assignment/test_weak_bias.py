@@ -30,6 +30,7 @@ from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.associators.assignment.weak_bias import (
     clock_shifts,
     confirmed_bias,
+    report_speed_factors,
     scale_echoes,
     speed_factors,
 )
@@ -187,3 +188,20 @@ def test_a_sensor_in_km_per_hour_is_named_for_its_detectors_owner(caplog):
     with caplog.at_level("WARNING", logger=logger):
         AssignmentAssociator().group(dense().without_labels())
     assert not caplog.records
+
+
+def test_a_queues_long_travel_times_name_no_sensor(caplog):
+    """Both segments of the sensor at 200 m run 1.6 times their kinematic prediction, as a
+    sensor reading twice the speed would make them; but its median speed is its neighbours':
+    a queue between them, not a calibration. At 300 m the speeds stand off too."""
+    positions = np.array([0.0, 100.0, 200.0, 300.0, 400.0])
+    biases = np.array([0.0, np.log(1.6), np.log(1.6), 0.0])
+    logger = "roadlink.association.associators.assignment.weak_bias"
+    with caplog.at_level("WARNING", logger=logger):
+        report_speed_factors(positions, biases, np.array([20.0, 20.0, 20.0, 20.0, 20.0]))
+    assert not caplog.records
+    with caplog.at_level("WARNING", logger=logger):
+        report_speed_factors(positions, biases, np.array([20.0, 20.0, 70.0, 20.0, 20.0]))
+    assert [r.getMessage()[:50] for r in caplog.records] == [
+        "the sensor at position 200 reads speeds about 4.00"
+    ]

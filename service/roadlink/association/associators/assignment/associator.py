@@ -69,7 +69,7 @@ class AssignmentAssociator(Associator):
         params = within_time_scale(self.params, s.typical_travel_time())
         self.effective_params = params
         prior = segment_prior(s, params.max_skip + 1, params)
-        report_speed_factors(s.positions, prior.log_bias[:-1, 1])
+        report_speed_factors(s.positions, prior.log_bias[:-1, 1], s.median_speed)
         # Every pass (a linking round or a re-pairing sweep) visits each sensor once and costs
         # about the same: progress is the share of passes done.
         rounds = params.em_rounds + 1

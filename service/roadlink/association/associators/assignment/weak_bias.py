@@ -172,12 +172,20 @@ def speed_factors(log_bias: FloatArray) -> FloatArray:
     return factor
 
 
-def report_speed_factors(positions: FloatArray, log_bias: FloatArray) -> None:
+def report_speed_factors(
+    positions: FloatArray, log_bias: FloatArray, median_speed: FloatArray
+) -> None:
     """Log each sensor whose speeds read `SPEED_FACTOR_WARNING` or more off what the travel
     times either side of it give (a warning: someone should check that detector's calibration
-    or unit; the association takes the factor into its segments' biases)."""
+    or unit; the association takes the factor into its segments' biases), where its median
+    speed stands off its neighbours' the same way, by at least half that factor (in log): in a
+    queue two segments' travel times may both run long while the sensor between them reads
+    what its neighbours read (an oracle's true biases in a lane drop's queue gave 2.0)."""
     factor = speed_factors(log_bias)
+    between = np.ones(factor.size)
+    between[1:-1] = median_speed[1:-1] / np.sqrt(median_speed[:-2] * median_speed[2:])
     off = np.abs(np.log(factor)) >= np.log(SPEED_FACTOR_WARNING)
+    off &= np.log(between) * np.log(factor) >= 0.5 * np.square(np.log(factor))
     for k in np.flatnonzero(off):
         LOG.warning(
             "the sensor at position %g reads speeds about %.2f times what the travel times "
