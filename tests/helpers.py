@@ -3,14 +3,17 @@ counting rows. Fixtures live in conftest.py files; these are imported like any m
 
 from __future__ import annotations
 
+import dataclasses
 import uuid
 from collections.abc import Callable
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from sqlalchemy import Engine, func, select
 
+from roadlink.association.csvio import read_detections_csv
 from roadlink.association.detections import Detections
 from roadlink.association.fast_csv import fast_detections
 from roadlink.db import repository
@@ -217,4 +220,17 @@ def travel_times(d: Detections, a: float, b: float) -> np.ndarray:
             for t, time, p in zip(d.target, d.timestamp, d.position, strict=True)
             if p == b and t in at_a
         ]
+    )
+
+
+COMMITTED_DENSE = Path(__file__).parent / "data" / "sumo" / "sumo-dense.csv"
+"""SUMO's dense motorway, seed 0 (11 sensors 250 m apart, travel times of about 8 s)."""
+
+
+def one_sensor_in_km_per_hour(sensor: int = 5) -> Detections:
+    """The committed dense case, its `sensor`-th sensor reporting km/h among sensors in m/s."""
+    d = read_detections_csv(COMMITTED_DENSE)
+    positions = np.unique(d.position)
+    return dataclasses.replace(
+        d, velocity=d.velocity * np.where(d.position == positions[sensor], 3.6, 1.0)
     )

@@ -16,9 +16,10 @@ import pytest
 from roadlink.association import associate
 from roadlink.association.detections import COLUMNS, Detections
 from roadlink.association.result import build_result, result_from_dict, road_order
+from roadlink.association.result_text import result_json_compact, write_result_json
 from roadlink.association.scores import wrongly_grouped
 from roadlink.simulation import preset, simulate
-from tests.helpers import with_features
+from tests.helpers import one_sensor_in_km_per_hour, with_features
 
 FEATURES = ("lane", "length", "vehicle_class")
 DETECTION_KEYS = {"detection_id", "sensor_id", "position", "velocity", "timestamp"}
@@ -126,6 +127,23 @@ def test_the_parameters_an_associator_ran_with_round_trip() -> None:
     document = json.loads(json.dumps(associate(detections, "assignment").to_dict()))
     assert document["effective_params"]["max_skip"] == document["params"]["max_skip"] == 2
     assert result_from_dict(document).to_dict()["effective_params"] == document["effective_params"]
+
+
+def test_what_the_associator_found_wrong_with_the_detectors_is_in_the_document() -> None:
+    """A sensor in km/h among sensors in m/s: one sentence naming it, in both JSON writers'
+    documents, round-tripped; no key at all where nothing is wrong."""
+    result = associate(one_sensor_in_km_per_hour(5), "assignment")
+    (warning,) = result.warnings
+    assert warning.startswith("the sensor at position 1450 reads speeds about 3.")
+    document = result.to_dict()
+    assert document["warnings"] == [warning]
+    assert json.loads(result_json_compact(result))["warnings"] == [warning]
+    written = io.BytesIO()
+    write_result_json(result, written)
+    assert json.loads(written.getvalue())["warnings"] == [warning]
+    assert result_from_dict(json.loads(json.dumps(document))).warnings == (warning,)
+    plain = associate(simulate(preset("medium"), seed=1).detections, "assignment")
+    assert plain.warnings == () and "warnings" not in plain.to_dict()
 
 
 def test_detector_features_round_trip_with_each_target_summarised() -> None:

@@ -102,4 +102,5 @@ def associate(
         None if effective is None else effective.model_dump(),
         grouper.link_confidence,
         scored=scored,
+        warnings=grouper.warnings,
     )

@@ -28,6 +28,8 @@ class AssociationResult:
     `link_confidence[i]` is the approximate probability that the link from the previous
     detection of i's target to i is right (NaN for a target's first detection and for
     unassigned ones), from an associator that builds targets from links; else None.
+    `warnings` are what the associator found wrong with the detectors (a sensor whose clock or
+    speed calibration is off), for whoever keeps them.
     """
 
     associator: str
@@ -37,6 +39,7 @@ class AssociationResult:
     metrics: Metrics | None
     effective_params: dict[str, Any] | None = None
     link_confidence: FloatArray | None = None
+    warnings: tuple[str, ...] = ()
 
     @property
     def n_targets(self) -> int:
@@ -106,10 +109,12 @@ class AssociationResult:
         adapted = (
             {} if self.effective_params is None else {"effective_params": self.effective_params}
         )
+        warned = {"warnings": list(self.warnings)} if self.warnings else {}
         return {
             "associator": self.associator,
             "params": self.params,
             **adapted,
+            **warned,
             "n_detections": len(self.detections),
             "n_targets": self.n_targets,
             "targets": [
@@ -222,6 +227,7 @@ def result_from_dict(
         metrics=score_grouping(group_array, _labels(detections)),
         effective_params=None if effective is None else dict(effective),
         link_confidence=link_confidence,
+        warnings=tuple(str(w) for w in document.get("warnings", ())),
     )
 
 
@@ -234,6 +240,7 @@ def build_result(
     link_confidence: FloatArray | None = None,
     *,
     scored: bool = True,
+    warnings: tuple[str, ...] = (),
 ) -> AssociationResult:
     """Renumber groups by the time each target passes the reference sensor, and score them
     (unless not `scored`: then the metrics are None until `AssociationResult.scored`).
@@ -267,6 +274,7 @@ def build_result(
         metrics=score_grouping(renumbered, _labels(detections)) if scored else None,
         effective_params=effective_params,
         link_confidence=link_confidence,
+        warnings=warnings,
     )
 
 

@@ -15,12 +15,14 @@ from sqlalchemy import Engine, update
 
 from roadlink.api import create_app
 from roadlink.api.pagelinks import token_key
+from roadlink.association.csvio import read_detections_csv, write_detections_csv
+from roadlink.association.detections import Detections
 from roadlink.db.apikeys import find_api_key, revoke_api_key
 from roadlink.db.engine import make_session_factory, transaction
 from roadlink.db.models import Job
 from roadlink.queue.worker import Worker
 from roadlink.settings import Settings
-from tests.helpers import MakeKey, bearer
+from tests.helpers import COMMITTED_DENSE, MakeKey, bearer, one_sensor_in_km_per_hour
 
 
 class Page(HTMLParser):
@@ -253,3 +255,27 @@ def test_the_page_shows_confidences_where_the_associator_gives_them(
     first = result["targets"][0]
     assert f"{100 * first['confidence']:.0f} %" in page.text
     assert f"{100 * first['detections'][1]['link_confidence']:.0f} %" in page.text
+
+
+def dense() -> Detections:
+    return read_detections_csv(COMMITTED_DENSE)
+
+
+def test_the_page_and_the_result_say_what_is_wrong_with_the_detectors(
+    client: TestClient, worker: Worker, deployment: dict[str, Any]
+) -> None:
+    """One sensor sends km/h among sensors in m/s: the result names it in `warnings`, and the
+    job page lists it under Detectors; a job with nothing wrong has neither."""
+    for detections, warned in ((one_sensor_in_km_per_hour(5), True), (dense(), False)):
+        job = _post(
+            client, deployment["id"], write_detections_csv(detections), associator="assignment"
+        )
+        assert worker.run_once()
+        result = client.get(f"/v1/jobs/{job}/result").json()
+        parsed = Page(client.get(f"/jobs/{job}").text)
+        if warned:
+            (warning,) = result["warnings"]
+            assert warning.startswith("the sensor at position 1450 reads speeds about 3.")
+            assert parsed.ids["warnings"] == "ul" and warning in "".join(parsed.text)
+        else:
+            assert "warnings" not in result and "warnings" not in parsed.ids

@@ -166,6 +166,7 @@ class ResultView:
     listed: bool
     has_confidence: bool
     features: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
 
 METRIC_NAMES = (
@@ -252,6 +253,7 @@ def _result_view(cached: CachedResult, kind: str) -> ResultView:
         listed=listed,
         has_confidence=links is not None,
         features=features,
+        warnings=result.warnings,
     )
 
 

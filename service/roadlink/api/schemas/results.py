@@ -166,6 +166,14 @@ class AssociationResultRead(BaseModel):
         "`assignment` holds its parameters in time units (duplicate_window, timestamp_noise) "
         "to shares of a typical travel time between neighbouring sensors (docs/assignment.md).",
     )
+    # Absent, never null or empty, where the associator found nothing wrong.
+    warnings: list[str] | SkipJsonSchema[None] = Field(
+        default=None,
+        description="What the associator found wrong with the detectors, one sentence each, "
+        "for whoever keeps them: a sensor whose clock is off (its times were set right for the "
+        "association), one whose speeds read some factor off its neighbours' (a calibration, "
+        "or km/h among sensors in m/s). Absent where there is nothing to say.",
+    )
     n_detections: int
     n_targets: int
     targets: list[TargetRead]

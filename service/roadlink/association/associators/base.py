@@ -49,6 +49,9 @@ class Associator(ABC):
     given to the detections (`assignment` holds those in time units to their time scale): set
     by `group`, like a fitted attribute in scikit-learn. None for an associator that runs with
     its parameters as given."""
+    warnings: tuple[str, ...] = ()
+    """What the last `group` found wrong with the detectors, for whoever keeps them (a sensor
+    whose clock is off, one whose speeds read a factor off), set by `group`; also logged."""
     link_confidence: FloatArray | None = None
     """Per detection, the approximate probability that the link into it from the previous
     detection of its target is right (NaN for a target's first detection and for unassigned

@@ -156,9 +156,14 @@ def test_dense_traffic_past_an_offset_clock_is_associated_as_on_time(seconds):
     assert off.accuracy >= on_time.accuracy - 0.005
 
 
+WARNINGS_LOGGER = "roadlink.association.associators.assignment.associator"
+
+
 def test_a_sensor_set_right_is_logged_for_its_detectors_owner(caplog):
     d = shifted("sumo-dense", 20.0)
-    with caplog.at_level("WARNING", logger="roadlink.association.associators.assignment.clocks"):
+    with caplog.at_level(
+        "WARNING", logger="roadlink.association.associators.assignment.associator"
+    ):
         associate(d, "assignment")
     position = float(np.unique(d.position)[MIDDLE])
     assert [r.getMessage().split(" stamps")[0] for r in caplog.records] == [
@@ -166,6 +171,8 @@ def test_a_sensor_set_right_is_logged_for_its_detectors_owner(caplog):
     ]
     assert "s later than the sensors either side of it" in caplog.records[0].getMessage()
     caplog.clear()
-    with caplog.at_level("WARNING", logger="roadlink.association.associators.assignment.clocks"):
+    with caplog.at_level(
+        "WARNING", logger="roadlink.association.associators.assignment.associator"
+    ):
         associate(shifted("sumo-dense", 0.0), "assignment")
     assert not caplog.records

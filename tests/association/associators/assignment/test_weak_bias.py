@@ -30,12 +30,13 @@ from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.associators.assignment.weak_bias import (
     clock_shifts,
     confirmed_bias,
-    report_speed_factors,
     scale_echoes,
+    speed_factor_warnings,
     speed_factors,
 )
 from roadlink.association.csvio import read_detections_csv
 from roadlink.association.detections import Detections
+from tests.helpers import one_sensor_in_km_per_hour
 
 DENSE = Path(__file__).parents[3] / "data" / "sumo" / "sumo-dense.csv"
 PARAMS = AssignmentParams()
@@ -120,15 +121,6 @@ def test_a_weak_bias_is_kept_where_its_neighbour_mirrors_it_in_seconds():
     assert clock_shifts(weak_out, np.array([0.0, 0.0, 0.0, np.log(6.0 / 4.0)]), seconds) == weak_out
 
 
-def in_km_per_hour(sensor: int) -> Detections:
-    """The committed dense case, one sensor reporting its speeds in km/h among sensors in m/s."""
-    d = read_detections_csv(DENSE)
-    positions = np.unique(d.position)
-    return dataclasses.replace(
-        d, velocity=d.velocity * np.where(d.position == positions[sensor], 3.6, 1.0)
-    )
-
-
 def test_a_weak_bias_is_kept_where_its_neighbour_echoes_it():
     high = np.log(1.0 / (0.5 + 0.5 / 1.2))  # a sensor reading 20 % high shortens both its
     assert scale_echoes({1: high}, np.array([0.0, 0.0, high, 0.0])) == {1: high}  # segments'
@@ -145,7 +137,7 @@ def test_a_weak_bias_is_kept_where_its_neighbour_echoes_it():
 def test_a_sensor_in_km_per_hour_gives_both_its_segments_its_bias(sensor):
     """The kinematic prediction of both segments is 1 / (0.5 + 0.5 / 3.6) times too short; the
     bump of one of them fell short of the prior's test, and alone it was not kept."""
-    s = arrange(in_km_per_hour(sensor).without_labels(), PARAMS)
+    s = arrange(one_sensor_in_km_per_hour(sensor).without_labels(), PARAMS)
     bias = segment_prior(s, 3, PARAMS).log_bias[:-1, 1]
     expected = np.log(1.0 / (0.5 + 0.5 / 3.6))
     assert bias[sensor - 1] == pytest.approx(expected, abs=0.03)
@@ -158,7 +150,7 @@ def test_dense_traffic_past_a_sensor_in_km_per_hour_is_associated_as_without_it(
     """Measured 64.8 % when the segment whose bump was weak kept the kinematic prediction (the
     learning locked onto links shifted by a vehicle), 95.3 % now; 95.4 % in m/s."""
     plain = associate(dense(), "assignment").metrics
-    km_h = associate(in_km_per_hour(5), "assignment").metrics
+    km_h = associate(one_sensor_in_km_per_hour(5), "assignment").metrics
     assert plain is not None and km_h is not None
     assert km_h.accuracy >= 0.93 and plain.accuracy - km_h.accuracy < 0.015
 
@@ -176,9 +168,9 @@ def test_a_sensors_speed_factor_is_read_off_the_biases_its_segments_echo():
 
 
 def test_a_sensor_in_km_per_hour_is_named_for_its_detectors_owner(caplog):
-    logger = "roadlink.association.associators.assignment.weak_bias"
+    logger = "roadlink.association.associators.assignment.associator"
     with caplog.at_level("WARNING", logger=logger):
-        AssignmentAssociator().group(in_km_per_hour(5).without_labels())
+        AssignmentAssociator().group(one_sensor_in_km_per_hour(5).without_labels())
     position = np.unique(read_detections_csv(DENSE).position)[5]
     (record,) = caplog.records
     assert record.getMessage().startswith(
@@ -190,18 +182,12 @@ def test_a_sensor_in_km_per_hour_is_named_for_its_detectors_owner(caplog):
     assert not caplog.records
 
 
-def test_a_queues_long_travel_times_name_no_sensor(caplog):
+def test_a_queues_long_travel_times_name_no_sensor():
     """Both segments of the sensor at 200 m run 1.6 times their kinematic prediction, as a
-    sensor reading twice the speed would make them; but its median speed is its neighbours':
-    a queue between them, not a calibration. At 300 m the speeds stand off too."""
+    sensor reading four times the speed would make them; but its median speed is its
+    neighbours': a queue between them, not a calibration. Standing off them, it is named."""
     positions = np.array([0.0, 100.0, 200.0, 300.0, 400.0])
     biases = np.array([0.0, np.log(1.6), np.log(1.6), 0.0])
-    logger = "roadlink.association.associators.assignment.weak_bias"
-    with caplog.at_level("WARNING", logger=logger):
-        report_speed_factors(positions, biases, np.array([20.0, 20.0, 20.0, 20.0, 20.0]))
-    assert not caplog.records
-    with caplog.at_level("WARNING", logger=logger):
-        report_speed_factors(positions, biases, np.array([20.0, 20.0, 70.0, 20.0, 20.0]))
-    assert [r.getMessage()[:50] for r in caplog.records] == [
-        "the sensor at position 200 reads speeds about 4.00"
-    ]
+    assert speed_factor_warnings(positions, biases, np.full(5, 20.0)) == []
+    (warning,) = speed_factor_warnings(positions, biases, np.array([20.0, 20.0, 70.0, 20.0, 20.0]))
+    assert warning.startswith("the sensor at position 200 reads speeds about 4.00 times")

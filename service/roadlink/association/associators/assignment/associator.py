@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -13,7 +14,7 @@ from roadlink.association.associators.assignment.anchors import (
     weigh_anchors,
 )
 from roadlink.association.associators.assignment.arrays import filled, same
-from roadlink.association.associators.assignment.clocks import report_clock_offsets
+from roadlink.association.associators.assignment.clocks import clock_warnings
 from roadlink.association.associators.assignment.confidence import (
     cut_weak_links,
     link_confidence,
@@ -37,9 +38,11 @@ from roadlink.association.associators.assignment.tracks import (
     SweepSetup,
     build_tracks,
 )
-from roadlink.association.associators.assignment.weak_bias import report_speed_factors
+from roadlink.association.associators.assignment.weak_bias import speed_factor_warnings
 from roadlink.association.associators.base import Associator, Progress
 from roadlink.association.detections import Detections, FloatArray, IntArray
+
+LOG = logging.getLogger(__name__)
 
 
 class AssignmentAssociator(Associator):
@@ -64,12 +67,17 @@ class AssignmentAssociator(Associator):
         from the prior, link and learn for `em_rounds` rounds and once more, re-pair for
         `refine_sweeps` sweeps, and keep the tracks that are targets."""
         s = arrange(detections, self.params)
-        # Said once a run here, not by `arrange`, which live association repeats every step.
-        report_clock_offsets(s.positions, s.clock_offsets)
         params = within_time_scale(self.params, s.typical_travel_time())
         self.effective_params = params
         prior = segment_prior(s, params.max_skip + 1, params)
-        report_speed_factors(s.positions, prior.log_bias[:-1, 1], s.median_speed)
+        # Said once a run here, not by `arrange` and the prior, which live association repeats
+        # every step.
+        self.warnings = (
+            *clock_warnings(s.positions, s.clock_offsets),
+            *speed_factor_warnings(s.positions, prior.log_bias[:-1, 1], s.median_speed),
+        )
+        for warning in self.warnings:
+            LOG.warning("%s", warning)
         # Every pass (a linking round or a re-pairing sweep) visits each sensor once and costs
         # about the same: progress is the share of passes done.
         rounds = params.em_rounds + 1

@@ -39,7 +39,6 @@ learned biases, factors like the position's error, did better). Hence the warnin
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,8 +47,6 @@ import numpy.typing as npt
 from roadlink.association.associators.assignment.matching import matched_cost
 from roadlink.association.associators.assignment.sensors import travel_time
 from roadlink.association.detections import FloatArray, IntArray
-
-LOG = logging.getLogger(__name__)
 
 # Detections of a segment's near sensor whose pairs are counted, evenly spread over the batch:
 # enough that the true pairs' peak stands out, few enough to cost little at 10^6 detections.
@@ -135,20 +132,18 @@ def clock_offsets(
     return offsets
 
 
-def report_clock_offsets(positions: FloatArray, offsets: FloatArray | None) -> None:
-    """Log each sensor whose clock was set right (a warning: someone should set the detector's
-    own clock right; the association is not affected)."""
+def clock_warnings(positions: FloatArray, offsets: FloatArray | None) -> list[str]:
+    """A sentence for each sensor whose clock was set right, for whoever keeps the detector's
+    own clock (the association is not affected)."""
     if offsets is None:
-        return
-    for k in np.flatnonzero(offsets):
-        LOG.warning(
-            "the sensor at position %g stamps its detections %.1f s %s than the sensors "
-            "either side of it: its clock is off (or its position is); its times were set right "
-            "for the association",
-            positions[k],
-            abs(offsets[k]),
-            "later" if offsets[k] > 0 else "earlier",
-        )
+        return []
+    return [
+        f"the sensor at position {positions[k]:g} stamps its detections "
+        f"{abs(offsets[k]):.1f} s {'later' if offsets[k] > 0 else 'earlier'} than the sensors "
+        "either side of it: its clock is off (or its position is); its times were set right "
+        "for the association"
+        for k in np.flatnonzero(offsets)
+    ]
 
 
 def mirrored(into: Lag | None, out_of: Lag | None) -> float | None:

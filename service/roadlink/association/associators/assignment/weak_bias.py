@@ -21,7 +21,6 @@ them with vehicles that are there would win for that alone.
 
 from __future__ import annotations
 
-import logging
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -49,8 +48,6 @@ SCALE_ECHO = 2.0
 # a warning. On 203 exported SUMO cases with exact speeds none is; 10 % per-sensor calibration
 # errors name a sensor in one case of five.
 SPEED_FACTOR_WARNING = 1.25
-
-LOG = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from roadlink.association.associators.assignment.params import AssignmentParams
@@ -172,25 +169,23 @@ def speed_factors(log_bias: FloatArray) -> FloatArray:
     return factor
 
 
-def report_speed_factors(
+def speed_factor_warnings(
     positions: FloatArray, log_bias: FloatArray, median_speed: FloatArray
-) -> None:
-    """Log each sensor whose speeds read `SPEED_FACTOR_WARNING` or more off what the travel
-    times either side of it give (a warning: someone should check that detector's calibration
-    or unit; the association takes the factor into its segments' biases), where its median
-    speed stands off its neighbours' the same way, by at least half that factor (in log): in a
-    queue two segments' travel times may both run long while the sensor between them reads
-    what its neighbours read (an oracle's true biases in a lane drop's queue gave 2.0)."""
+) -> list[str]:
+    """A sentence for each sensor whose speeds read `SPEED_FACTOR_WARNING` or more off what the
+    travel times either side of it give, for whoever keeps the detector (its calibration or
+    unit; the association takes the factor into its segments' biases), where its median speed
+    stands off its neighbours' the same way, by at least half that factor (in log): in a queue
+    two segments' travel times may both run long while the sensor between them reads what its
+    neighbours read (an oracle's true biases in a lane drop's queue gave 2.0)."""
     factor = speed_factors(log_bias)
     between = np.ones(factor.size)
     between[1:-1] = median_speed[1:-1] / np.sqrt(median_speed[:-2] * median_speed[2:])
     off = np.abs(np.log(factor)) >= np.log(SPEED_FACTOR_WARNING)
     off &= np.log(between) * np.log(factor) >= 0.5 * np.square(np.log(factor))
-    for k in np.flatnonzero(off):
-        LOG.warning(
-            "the sensor at position %g reads speeds about %.2f times what the travel times "
-            "either side of it give: its speed calibration or unit is off (km/h read as m/s is "
-            "3.6 times); the association allowed for it",
-            positions[k],
-            factor[k],
-        )
+    return [
+        f"the sensor at position {positions[k]:g} reads speeds about {factor[k]:.2f} times what "
+        "the travel times either side of it give: its speed calibration or unit is off (km/h "
+        "read as m/s is 3.6 times); the association allowed for it"
+        for k in np.flatnonzero(off)
+    ]
