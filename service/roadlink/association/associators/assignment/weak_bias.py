@@ -45,8 +45,8 @@ CLOCK_MIRROR = 1.5
 # ends' sensors' own calibration moves each by its own (10 % per sensor, lognormal: 1.2-1.8x).
 SCALE_ECHO = 2.0
 # A sensor whose speeds its segments' biases put this factor off or more, either way, is named in
-# a warning. On 203 exported SUMO cases with exact speeds none is; 10 % per-sensor calibration
-# errors name a sensor in one case of five.
+# a warning (where its median speed stands off its neighbours' too). On 203 exported SUMO cases
+# with exact speeds none is; per-sensor calibration errors of 8-10 % name one in 3 cases of 20.
 SPEED_FACTOR_WARNING = 1.25
 
 if TYPE_CHECKING:
