@@ -17,6 +17,7 @@ from roadlink.association.associators import ASSOCIATORS
 from roadlink.association.csvio import read_detections_csv, write_detections_csv
 from roadlink.cli import app
 from roadlink.simulation import preset, simulate
+from tests.helpers import COMMITTED_DENSE
 
 runner = CliRunner()
 
@@ -246,15 +247,12 @@ def test_work_beside_the_association_sees_the_detections_and_its_errors_surface(
         analysis.associate_file(small_csv, "assignment", [], broken)
 
 
-DENSE = Path(__file__).parents[1] / "data" / "sumo" / "sumo-dense.csv"
-
-
 def associate_with_middle_sensor_off(
     tmp_path: Path, column: str, change: Callable[[np.ndarray], np.ndarray]
 ) -> tuple[float, subprocess.CompletedProcess[str]]:
     """`roadlink associate` on the committed dense case with the middle sensor's `column`
     changed, in a process of its own, as a user runs it: the sensor's position and the run."""
-    dense = read_detections_csv(DENSE)
+    dense = read_detections_csv(COMMITTED_DENSE)
     middle = np.unique(dense.position)[5]
     at_middle = dense.position == middle
     values = getattr(dense, column).copy()

@@ -24,6 +24,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from roadlink.association.associators.assignment.matching import matched_cost
 from roadlink.association.associators.assignment.sensors import travel_time
@@ -143,15 +144,24 @@ def scale_echoes(weak: dict[int, float], biases: FloatArray) -> dict[int, float]
     lognormal 10 %: 0 % on the segment whose ends both read 20 % high). A slow zone's or a
     traffic light's weak bias has no such echo (their neighbours keep the kinematic
     prediction), and kept there it cost 1 to 1.4 points."""
-    kept: dict[int, float] = {}
-    for p, bias in weak.items():
-        for q in (p - 1, p + 1):
-            if not 0 <= q < biases.size or bias == 0:
-                continue
-            ratio = weak.get(q, float(biases[q])) / bias
-            if 1 / SCALE_ECHO <= ratio <= SCALE_ECHO:
-                kept[p] = bias
-    return kept
+    return {
+        p: bias
+        for p, bias in weak.items()
+        if any(
+            echo(weak.get(q, float(biases[q])), bias)
+            for q in (p - 1, p + 1)
+            if 0 <= q < biases.size
+        )
+    }
+
+
+def echo(a: npt.ArrayLike, b: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+    """Whether log biases `a` and `b` echo each other: the same sign, each within `SCALE_ECHO`
+    of the other (elementwise)."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    return (
+        (a * b > 0) & (np.abs(a) <= SCALE_ECHO * np.abs(b)) & (np.abs(b) <= SCALE_ECHO * np.abs(a))
+    )
 
 
 def speed_factors(log_bias: FloatArray) -> FloatArray:
@@ -161,11 +171,9 @@ def speed_factors(log_bias: FloatArray) -> FloatArray:
     1 / (2 e^-b - 1) at their mean b."""
     factor = np.ones(log_bias.size + 1)
     into, out_of = log_bias[:-1], log_bias[1:]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = into / out_of
-    echo = (into * out_of > 0) & (ratio >= 1 / SCALE_ECHO) & (ratio <= SCALE_ECHO)
     half = 2.0 * np.exp(-0.5 * (into + out_of)) - 1.0
-    factor[1:-1] = np.where(echo & (half > 0), 1.0 / np.where(half > 0, half, 1.0), 1.0)
+    known = echo(into, out_of) & (half > 0)
+    factor[1:-1] = np.where(known, 1.0 / np.where(known, half, 1.0), 1.0)
     return factor
 
 
