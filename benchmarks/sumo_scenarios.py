@@ -10,6 +10,7 @@ from roadlink.simulation.sumo import (
     SUMO_SCENARIOS,
     Bottleneck,
     DetectorFaults,
+    Ramp,
     Signal,
     SumoScenario,
     mix,
@@ -172,12 +173,40 @@ VALIDATION: dict[str, SumoScenario] = {
         "speed error.",
         faults=DetectorFaults(miss_probability=0.03, false_alarm_rate=0.03, velocity_noise=0.03),
     ),
+    "val-junctions2": sumo_scenario(
+        "sumo-junctions",
+        description="2 lanes at 100 km/h, 2000 veh/h, sensors every 200 m, past an on-ramp "
+        "(500 veh/h at 520 m), an off-ramp (30 % at 1280 m) and another on-ramp (600 veh/h at "
+        "1700 m).",
+        lanes=2,
+        demand=2000.0,
+        speed_limit=27.78,
+        road_length=2600.0,
+        sensor_positions=[150.0 + 200.0 * i for i in range(12)],
+        ramps=[
+            Ramp(position=520.0, kind="on", demand=500.0),
+            Ramp(position=1280.0, kind="off", share=0.3),
+            Ramp(position=1700.0, kind="on", demand=600.0),
+        ],
+    ),
+    "val-junctions-dense": sumo_scenario(
+        "sumo-junctions",
+        description="3 lanes, 3800 veh/h, an on-ramp (900 veh/h at 1070 m) and an off-ramp "
+        "(25 % at 1830 m).",
+        demand=3800.0,
+        duration=120.0,
+        ramps=[
+            Ramp(position=1070.0, kind="on", demand=900.0),
+            Ramp(position=1830.0, kind="off", share=0.25),
+        ],
+    ),
 }
 
 # Queues and faults simulated to judge the method, not to tune it (2026-11-27). The ho-* six were
 # used to find what fails (the window's edges, the segments' learning); the h2-* four were not
 # looked at until those changes were made. h3-arterial3 (2026-11-28) judges what is done for
-# traffic lights (sumo-arterial). Change no default on their account.
+# traffic lights (sumo-arterial), and the h5-* two (2026-11-28, session 23) what is done for
+# junctions (sumo-junctions). Change no default on their account.
 HOLDOUT: dict[str, SumoScenario] = {
     "ho-drop31": sumo_scenario(
         "sumo-freeflow",
@@ -314,6 +343,41 @@ HOLDOUT: dict[str, SumoScenario] = {
             Signal(position=1500.0, green=35.0, red=40.0, offset=10.0),
         ],
         warmup=400.0,
+    ),
+    "h5-interchange": sumo_scenario(
+        "sumo-junctions",
+        description="3 lanes at 110 km/h, 3600 veh/h, 15 % trucks, sensors every 400 m: an "
+        "interchange whose off-ramp (25 %) and on-ramp (800 veh/h) both lie between two sensors, "
+        "and a later on-ramp (400 veh/h); speeds read with a 3 % error.",
+        speed_limit=30.56,
+        demand=3600.0,
+        vehicles=mix(car=0.85, truck=0.15),
+        road_length=4600.0,
+        sensor_positions=[300.0 + 400.0 * i for i in range(11)],
+        ramps=[
+            Ramp(position=1380.0, kind="off", share=0.25),
+            Ramp(position=1700.0, kind="on", demand=800.0),
+            Ramp(position=3050.0, kind="on", demand=400.0),
+        ],
+        faults=DetectorFaults(velocity_noise=0.03),
+    ),
+    "h5-ring-road": sumo_scenario(
+        "sumo-junctions",
+        description="2 lanes at 80 km/h, 2400 veh/h, sensors 150-350 m apart, five junctions "
+        "close together (on, off, on, off, on): a city ring road, 3 % of detections missed.",
+        lanes=2,
+        speed_limit=22.22,
+        demand=2400.0,
+        road_length=3000.0,
+        sensor_positions=_spaced(150.0, [250, 150, 350, 200, 300, 180, 270, 220, 320, 160]),
+        ramps=[
+            Ramp(position=480.0, kind="on", demand=400.0),
+            Ramp(position=1000.0, kind="off", share=0.2),
+            Ramp(position=1230.0, kind="on", demand=500.0),
+            Ramp(position=2020.0, kind="off", share=0.25),
+            Ramp(position=2270.0, kind="on", demand=300.0),
+        ],
+        faults=DetectorFaults(miss_probability=0.03),
     ),
 }
 

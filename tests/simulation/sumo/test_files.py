@@ -3,6 +3,7 @@ loops written for a scenario, and the loops' output read back as detections."""
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,9 @@ from roadlink.simulation import sumo
 from roadlink.simulation.sumo import (
     SUMO_SCENARIOS,
     Bottleneck,
+    Ramp,
     Signal,
+    connections_xml,
     detectors_xml,
     network_xml,
     parse_detector_output,
@@ -167,3 +170,75 @@ def test_every_lane_at_every_sensor_has_a_loop_placed_on_the_lane_geometry():
     assert 'id="S2:1" lane="e1_1" pos="496.00"' in xml
     assert 'id="S3:2" lane="e2_2" pos="496.00"' in xml
     assert 'id="S1:0" lane="e0_0" pos="500.00"' in xml
+
+
+JUNCTIONS = [
+    Ramp(position=830.0, kind="off", share=0.2),
+    Ramp(position=1070.0, kind="on", demand=720.0),
+]
+
+
+def test_a_ramp_adds_a_lane_beside_the_road_where_it_meets_it():
+    scenario = sumo_scenario("sumo-freeflow", ramps=JUNCTIONS)
+    segments = road_segments(scenario)
+    # The off-ramp's deceleration lane before it, the on-ramp's acceleration lane after it.
+    assert [(s.start, s.end, s.lanes) for s in segments] == [
+        (0.0, 680.0, 3),
+        (680.0, 830.0, 4),
+        (830.0, 1070.0, 3),
+        (1070.0, 1320.0, 4),
+        (1320.0, 3000.0, 3),
+    ]
+    nodes, edges = network_xml(scenario)
+    assert '<node id="r1" x="1130.00" y="-60.00"/>' in nodes  # beyond the off-ramp's junction
+    assert '<node id="r2" x="770.00" y="-60.00"/>' in nodes  # before the on-ramp's
+    assert '<edge id="off1" from="n2" to="r1" numLanes="1" speed="22.22"/>' in edges
+    assert '<edge id="on2" from="r2" to="n3" numLanes="1" speed="22.22"/>' in edges
+
+
+def test_around_a_ramp_the_added_lane_leads_onto_it_or_merges_into_the_road():
+    xml = connections_xml(sumo_scenario("sumo-freeflow", ramps=JUNCTIONS))
+    connections = {
+        (c.get("from"), int(c.get("fromLane", -1)), c.get("to"), int(c.get("toLane", -1)))
+        for c in ET.fromstring(xml).iter("connection")
+    }
+    # Off-ramp: the road's lanes shift right by one onto the 4-lane edge, whose lane 0 (also
+    # reachable from lane 0) leads only onto the ramp.
+    assert {("e0", i, "e1", i + 1) for i in range(3)} <= connections
+    assert ("e0", 0, "e1", 0) in connections
+    assert ("e1", 0, "off1", 0) in connections
+    assert {("e1", i + 1, "e2", i) for i in range(3)} <= connections
+    # On-ramp: the ramp joins lane 0 of the acceleration stretch, which ends without a way on.
+    assert ("on2", 0, "e3", 0) in connections
+    assert {("e2", i, "e3", i + 1) for i in range(3)} <= connections
+    assert {("e3", i + 1, "e4", i) for i in range(3)} <= connections
+    assert not any(c[:2] == ("e3", 0) for c in connections)
+    assert connections_xml(SUMO_SCENARIOS["sumo-freeflow"]) == "<connections>\n</connections>\n"
+
+
+def test_vehicles_join_at_on_ramps_and_leave_by_off_ramps_as_their_shares_say():
+    scenario = sumo_scenario(
+        "sumo-freeflow", ramps=[*JUNCTIONS, Ramp(position=2000.0, kind="off", share=0.5)]
+    )
+    routes = ET.fromstring(routes_xml(scenario))
+    distributions = {d.get("id"): d for d in routes.iter("routeDistribution")}
+    assert sorted(distributions) == ["on2", "road"]
+    road = {r.get("id"): r for r in distributions["road"].iter("route")}
+    assert road["road_off1"].get("edges") == "e0 e1 off1"
+    assert road["road_off3"].get("edges") == "e0 e1 e2 e3 e4 e5 off3"
+    assert road["road_through"].get("edges") == "e0 e1 e2 e3 e4 e5 e6"
+    shares = [
+        float(road[r].get("probability", 0)) for r in ("road_off1", "road_off3", "road_through")
+    ]
+    assert shares == pytest.approx([0.2, 0.8 * 0.5, 0.8 * 0.5])
+    joining = {r.get("id"): r.get("edges") for r in distributions["on2"].iter("route")}
+    assert joining == {"on2_off3": "on2 e3 e4 e5 off3", "on2_through": "on2 e3 e4 e5 e6"}
+    flows = {f.get("id"): f for f in routes.iter("flow")}
+    assert flows["car-on2"].get("route") == "on2" and flows["car"].get("route") == "road"
+    # The on-ramp's 720 veh/h in the road's mix (90 % cars): 648 an hour.
+    assert flows["car-on2"].get("period") == f"exp({648 / 3600:.6f})"
+
+
+def test_a_road_without_off_ramps_keeps_its_one_route():
+    routes = routes_xml(SUMO_SCENARIOS["sumo-freeflow"])
+    assert "routeDistribution" not in routes and '<route id="road" edges="e0"/>' in routes

@@ -75,3 +75,17 @@ def test_traffic_lights_stop_the_vehicles_that_meet_red(tmp_path):
     lights = travel_times(d, 550.0, 700.0)  # the first signal stands at 640 m
     assert np.percentile(lights, 90) > np.median(free) + 20.0
     assert np.percentile(free, 90) < 1.5 * np.median(free)
+
+
+@needs_sumo
+def test_vehicles_join_from_on_ramps_and_leave_by_off_ramps(tmp_path):
+    scenario = sumo_scenario("sumo-junctions", warmup=150.0, duration=120.0)
+    d = sumo.run_sumo(scenario, seed=2, workdir=tmp_path)
+    assert (tmp_path / "road.con.xml").is_file()
+    vehicles = d.target.astype(str)
+    joined = np.char.find(vehicles, "-on") >= 0
+    assert joined.sum() > 20  # they merge, not wait at the junction for good
+    assert set(d.position[joined]) <= {1200.0, 1450.0, 1700.0, 1950.0, 2200.0, 2450.0, 2700.0}
+    seen_last = {v: p for v, p in zip(vehicles, d.position, strict=True)}
+    left = [v for v, p in seen_last.items() if p == 700.0 and "-on" not in v]
+    assert len(left) > 10  # those that took the first off-ramp, seen last before it

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from roadlink.association.detections import Detections
 from roadlink.simulation.sumo.scenarios import (
     YELLOW,
+    RoadSegment,
     SumoScenario,
     VehicleClass,
     road_segments,
@@ -29,10 +30,17 @@ LENGTH_TYPES = 20
 # Detectors stay this far from an edge's ends, where SUMO's junction lanes begin.
 EDGE_MARGIN = 0.5
 
+# A ramp is one lane, this long (m) and this far beside the road (m), at this speed limit
+# (m/s; 80 km/h, or the road's own where lower).
+RAMP_LENGTH = 300.0
+RAMP_OFFSET = 60.0
+RAMP_SPEED = 22.22
+
 
 def network_xml(scenario: SumoScenario) -> tuple[str, str]:
     """Plain nodes and edges XML of the road (for netconvert); the road runs along x from 0. A
-    signal's node is a traffic light (`signals_xml` gives its programme)."""
+    signal's node is a traffic light (`signals_xml` gives its programme); a ramp is an edge of
+    its own into (``on1``) or out of (``off2``) the road's node where it meets the road."""
     segments = road_segments(scenario)
     xs = [segments[0].start] + [s.end for s in segments]
     lights = {signal.position for signal in scenario.signals}
@@ -47,7 +55,41 @@ def network_xml(scenario: SumoScenario) -> tuple[str, str]:
         f'speed="{s.speed_limit:.2f}"/>\n'
         for k, s in enumerate(segments)
     )
+    speed = min(RAMP_SPEED, scenario.speed_limit)
+    for j, ramp in enumerate(scenario.ramps, start=1):
+        junction = f"n{xs.index(ramp.position)}"
+        side = ramp.position + (RAMP_LENGTH if ramp.kind == "off" else -RAMP_LENGTH)
+        nodes += f'  <node id="r{j}" x="{side:.2f}" y="{-RAMP_OFFSET:.2f}"/>\n'
+        ends = (junction, f"r{j}") if ramp.kind == "off" else (f"r{j}", junction)
+        edges += (
+            f'  <edge id="{ramp.kind}{j}" from="{ends[0]}" to="{ends[1]}" numLanes="1" '
+            f'speed="{speed:.2f}"/>\n'
+        )
     return f"<nodes>\n{nodes}</nodes>\n", f"<edges>\n{edges}</edges>\n"
+
+
+def connections_xml(scenario: SumoScenario) -> str:
+    """Which lane leads to which around each ramp (for netconvert): an on-ramp joins the lane
+    it adds, whose vehicles must merge left before it ends; the lane an off-ramp adds leads
+    only onto the ramp. Elsewhere netconvert's own connections hold."""
+    segments = road_segments(scenario)
+    lines = ["<connections>"]
+    for j, ramp in enumerate(scenario.ramps, start=1):
+        k = next(k for k, s in enumerate(segments) if s.start == ramp.added_lane[0])
+        before, wide, after = segments[k - 1], segments[k], segments[k + 1]
+        into = [(before.edge, i, wide.edge, i + 1) for i in range(before.lanes)]
+        out = [(wide.edge, i + 1, after.edge, i) for i in range(after.lanes)]
+        if ramp.kind == "on":
+            into.append((f"on{j}", 0, wide.edge, 0))
+        else:
+            into.append((before.edge, 0, wide.edge, 0))
+            out.append((wide.edge, 0, f"off{j}", 0))
+        lines.extend(
+            f'  <connection from="{a}" to="{b}" fromLane="{i}" toLane="{o}"/>'
+            for a, i, b, o in into + out
+        )
+    lines.append("</connections>")
+    return "\n".join(lines) + "\n"
 
 
 def signals_xml(scenario: SumoScenario, net_xml: str) -> str:
@@ -75,22 +117,64 @@ def signals_xml(scenario: SumoScenario, net_xml: str) -> str:
 
 
 def routes_xml(scenario: SumoScenario) -> str:
-    """Vehicle types and one Poisson flow per vehicle class over the whole road."""
+    """Vehicle types and one Poisson flow per vehicle class over the whole road, and one per
+    class from each on-ramp; where there are off-ramps, each flow's vehicles take them as their
+    shares say (a route distribution)."""
     segments = road_segments(scenario)
     total = sum(v.share for v in scenario.vehicles)
     end = scenario.warmup + scenario.duration
     lines = ["<routes>"]
     for v in scenario.vehicles:
         lines.extend(_vehicle_types(v, spread=scenario.features))
-    lines.append(f'  <route id="road" edges="{" ".join(s.edge for s in segments)}"/>')
-    for v in scenario.vehicles:
-        rate = scenario.demand * v.share / total / 3600.0  # vehicles per second
-        lines.append(
-            f'  <flow id="{v.name}" type="{v.name}" route="road" begin="0" end="{end}" '
-            f'period="exp({rate:.6f})" departLane="free" departSpeed="max"/>'
-        )
+    origins = [("road", "", 0.0, scenario.demand)]
+    origins += [
+        (f"on{j}", f"-on{j}", ramp.position, ramp.demand)
+        for j, ramp in enumerate(scenario.ramps, start=1)
+        if ramp.kind == "on"
+    ]
+    for route, _, entry, _ in origins:
+        lines.extend(_routes(scenario, segments, route, entry))
+    for route, suffix, _, demand in origins:
+        for v in scenario.vehicles:
+            rate = demand * v.share / total / 3600.0  # vehicles per second
+            lines.append(
+                f'  <flow id="{v.name}{suffix}" type="{v.name}" route="{route}" begin="0" '
+                f'end="{end}" period="exp({rate:.6f})" departLane="free" departSpeed="max"/>'
+            )
     lines.append("</routes>")
     return "\n".join(lines) + "\n"
+
+
+def _routes(
+    scenario: SumoScenario, segments: list[RoadSegment], name: str, entry: float
+) -> list[str]:
+    """The route named `name` of vehicles entering the road at `entry` (0: its start, else an
+    on-ramp of that name): one route to the road's end, or, where off-ramps lie beyond the
+    entry, a distribution over leaving at each of them or staying on."""
+    first = [] if entry == 0.0 else [name]
+    edges = [s.edge for s in segments if s.start >= entry]
+    exits = [
+        (f"off{j}", ramp)
+        for j, ramp in enumerate(scenario.ramps, start=1)
+        if ramp.kind == "off" and ramp.position > entry
+    ]
+    if not exits:
+        return [f'  <route id="{name}" edges="{" ".join(first + edges)}"/>']
+    lines = [f'  <routeDistribution id="{name}">']
+    staying = 1.0
+    for exit_edge, ramp in sorted(exits, key=lambda e: e[1].position):
+        before = [s.edge for s in segments if entry <= s.start < ramp.position]
+        lines.append(
+            f'    <route id="{name}_{exit_edge}" edges="{" ".join(first + before + [exit_edge])}" '
+            f'probability="{staying * ramp.share:.6f}"/>'
+        )
+        staying *= 1.0 - ramp.share
+    lines.append(
+        f'    <route id="{name}_through" edges="{" ".join(first + edges)}" '
+        f'probability="{staying:.6f}"/>'
+    )
+    lines.append("  </routeDistribution>")
+    return lines
 
 
 def _vehicle_types(v: VehicleClass, spread: bool) -> list[str]:

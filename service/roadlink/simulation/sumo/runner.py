@@ -15,6 +15,7 @@ from roadlink.association.detections import CLUTTER, Detections, FloatArray
 from roadlink.simulation.faults import DetectorFaults, Passages, apply_detector_faults
 from roadlink.simulation.sumo.files import (
     MIN_REPORTED_SPEED,
+    connections_xml,
     detectors_xml,
     network_xml,
     parse_detector_output,
@@ -91,9 +92,11 @@ def _run_in(home: Path, scenario: SumoScenario, seed: int, work: Path) -> Detect
     (work / "road.nod.xml").write_text(nodes)
     (work / "road.edg.xml").write_text(edges)
     (work / "road.rou.xml").write_text(routes_xml(scenario))
-    _call(
-        home, "netconvert", work, "-n", "road.nod.xml", "-e", "road.edg.xml", "-o", "road.net.xml"
-    )
+    inputs = ["-n", "road.nod.xml", "-e", "road.edg.xml"]
+    if scenario.ramps:
+        (work / "road.con.xml").write_text(connections_xml(scenario))
+        inputs += ["-x", "road.con.xml"]
+    _call(home, "netconvert", work, *inputs, "-o", "road.net.xml")
     net = (work / "road.net.xml").read_text()
     (work / "detectors.add.xml").write_text(detectors_xml(scenario, net, "detections.xml"))
     additional = "detectors.add.xml"

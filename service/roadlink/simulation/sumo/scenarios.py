@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import pairwise
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -112,6 +114,43 @@ class Signal(BaseModel):
 YELLOW = 3.0
 
 
+class Ramp(BaseModel):
+    """A junction's slip road: an on-ramp where vehicles join the road, or an off-ramp where some
+    leave it. No sensor stands on a ramp, so a vehicle that joins is first seen downstream of it
+    and one that leaves is seen last upstream of it."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    position: float = Field(gt=0, description="Where the ramp meets the road (m from its start).")
+    kind: Literal["on", "off"] = Field(description="'on': vehicles join; 'off': some leave.")
+    demand: float = Field(
+        default=600.0,
+        gt=0,
+        le=5000,
+        description="An on-ramp's traffic (vehicles per hour, in the road's mix of classes).",
+    )
+    share: float = Field(
+        default=0.15,
+        gt=0,
+        lt=1,
+        description="The share of the vehicles reaching an off-ramp that take it.",
+    )
+
+    @property
+    def added_lane(self) -> tuple[float, float]:
+        """Where the lane the ramp adds to the road begins and ends (m): an on-ramp's
+        acceleration lane after it, an off-ramp's deceleration lane before it."""
+        if self.kind == "on":
+            return (self.position, self.position + ACCELERATION_LANE)
+        return (self.position - DECELERATION_LANE, self.position)
+
+
+# The lane a ramp adds to the road (m): vehicles joining merge over the first, vehicles
+# leaving move onto the second before the ramp.
+ACCELERATION_LANE = 250.0
+DECELERATION_LANE = 150.0
+
+
 class SumoScenario(BaseModel):
     """A straight road, its sensors, its traffic, and what the detectors get wrong."""
 
@@ -133,6 +172,9 @@ class SumoScenario(BaseModel):
     bottleneck: Bottleneck | None = None
     signals: list[Signal] = Field(
         default_factory=list, description="Traffic lights across the road (an arterial)."
+    )
+    ramps: list[Ramp] = Field(
+        default_factory=list, description="Slip roads where vehicles join or leave the road."
     )
     warmup: float = Field(
         default=200.0, ge=0, description="Simulated time before detections are kept (s)."
@@ -163,7 +205,23 @@ class SumoScenario(BaseModel):
             raise ValueError("signals must stand at distinct positions inside the road")
         if set(at) & set(positions):
             raise ValueError("a signal cannot stand where a sensor does")
+        self._ramps_clear(positions, at)
         return self
+
+    def _ramps_clear(self, sensors: list[float], signals: list[float]) -> None:
+        """Each ramp's added lane lies inside the road, clear of the other ramps' lanes, the
+        signals and the bottleneck's ends, and no sensor stands where a ramp meets the road."""
+        stretches = sorted(ramp.added_lane for ramp in self.ramps)
+        if stretches and (stretches[0][0] <= 0 or stretches[-1][1] >= self.road_length):
+            raise ValueError("a ramp and the lane it adds must lie inside the road")
+        if any(b[0] <= a[1] for a, b in pairwise(stretches)):
+            raise ValueError("ramps' added lanes must not overlap")
+        neck = self.bottleneck
+        others = signals + ([neck.start, neck.end] if neck is not None else [])
+        if any(a <= x <= b for a, b in stretches for x in others):
+            raise ValueError("a ramp's added lane must keep clear of signals and bottlenecks")
+        if {r.position for r in self.ramps} & set(sensors):
+            raise ValueError("a ramp cannot meet the road where a sensor stands")
 
 
 def _spaced(first: float, gaps: Sequence[float]) -> list[float]:
@@ -228,6 +286,19 @@ SUMO_SCENARIOS: dict[str, SumoScenario] = {
         warmup=300.0,
         duration=300.0,
     ),
+    "sumo-junctions": SumoScenario(
+        description="3 lanes, 3000 veh/h, 10% trucks, past two junctions between sensors: at "
+        "each, an off-ramp takes a share of the traffic (20 % at 830 m, 15 % at 1830 m) and an "
+        "on-ramp brings more (700 veh/h at 1070 m, 500 at 2080 m), merging from an acceleration "
+        "lane: vehicles leave and join the road where no sensor sees them.",
+        demand=3000.0,
+        ramps=[
+            Ramp(position=830.0, kind="off", share=0.2),
+            Ramp(position=1070.0, kind="on", demand=700.0),
+            Ramp(position=1830.0, kind="off", share=0.15),
+            Ramp(position=2080.0, kind="on", demand=500.0),
+        ],
+    ),
     "sumo-faulty": SumoScenario(
         description="sumo-dense seen by faulty detectors: 5% missed, 5% false alarms, 2% "
         "duplicated, speed error 3%, timestamp error 0.05 s.",
@@ -272,7 +343,7 @@ class RoadSegment:
 
 def road_segments(scenario: SumoScenario) -> list[RoadSegment]:
     """The road cut into edges where the lane count or the speed limit changes, and at each
-    signal (a traffic light stands at a junction between two edges)."""
+    signal and ramp (each stands at a junction between two edges)."""
     neck = scenario.bottleneck
     normal = (scenario.lanes, scenario.speed_limit)
     if neck is None:
@@ -284,7 +355,10 @@ def road_segments(scenario: SumoScenario) -> list[RoadSegment]:
             (neck.start, neck.end, *narrow),
             (neck.end, scenario.road_length, *normal),
         ]
-    for x in sorted(signal.position for signal in scenario.signals):
+    junctions = {signal.position for signal in scenario.signals}
+    added = [ramp.added_lane for ramp in scenario.ramps]
+    junctions |= {x for lane in added for x in lane}
+    for x in sorted(junctions):
         stretches = [
             part
             for start, end, lanes, speed in stretches
@@ -294,5 +368,9 @@ def road_segments(scenario: SumoScenario) -> list[RoadSegment]:
                 else [(start, end, lanes, speed)]
             )
         ]
+    stretches = [
+        (start, end, lanes + any(a <= start and end <= b for a, b in added), speed)
+        for start, end, lanes, speed in stretches
+    ]
     kept = [s for s in stretches if s[1] > s[0]]  # a bottleneck may start at 0
     return [RoadSegment(f"e{k}", *stretch) for k, stretch in enumerate(kept)]
