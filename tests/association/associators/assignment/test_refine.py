@@ -13,6 +13,7 @@ import pytest
 from roadlink.association.associators.assignment import AssignmentParams, refine
 from roadlink.association.associators.assignment.anchors import Anchors
 from roadlink.association.associators.assignment.associator import link_and_learn
+from roadlink.association.associators.assignment.ends import RoadEnds
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import REFINE_GATE_FACTOR, within_time_scale
@@ -113,28 +114,54 @@ def test_suffix_sums_run_from_each_detection_to_its_tracks_end():
     assert count[[0, 4, 8]].tolist() == [5.0, 3.0, 1.0]
 
 
-def test_joining_fragments_pays_the_forward_pass_gate_where_anchors_weigh():
-    # Detections 0 -> 1 linked; 2 has no successor, 3 no predecessor. Candidate links at the
-    # boundary into sensor 1: 0 -> 1 (both held), 2 -> 3 (both ends loose), 0 -> 3 (one loose).
-    nxt = np.array([1, -1, -1, -1])
-    prv = np.array([-1, 0, -1, -1])
+def _boundary_into_sensor_1() -> tuple[Sensors, SegmentModel, tuple[np.ndarray, np.ndarray], Pairs]:
+    """The test road, V0 linked 0 -> 100 m (rows 0 -> 2), V1's rows 1 and 3 each alone, and the
+    candidate links into sensor 1: 0 -> 2 (both held), 1 -> 3 (both ends loose), 0 -> 3 (one
+    loose)."""
+    s = arrange(steady_vehicles([0.0, 1.5], [20.0, 30.0], ROAD), PARAMS)
+    nxt, prv = np.full(10, -1), np.full(10, -1)
+    nxt[0], prv[2] = 2, 0
     pairs = Pairs(
-        np.array([0, 2, 0]),
-        np.array([1, 3, 3]),
+        np.array([0, 1, 0]),
+        np.array([2, 3, 3]),
         np.zeros(3),
         np.zeros(3),
         np.ones(3),
         np.ones(3, dtype=np.int64),
     )
-    half_difference = (REFINE_GATE_FACTOR - 1.0) * PARAMS.gate_cost / 2.0
-    anchors = Anchors(np.full(4, -1), np.zeros(4), weight=np.array([1.0, 0.0]))
-    assert fragment_ends(PARAMS, anchors, 1, (nxt, prv), pairs).tolist() == pytest.approx(
-        [0.0, 2 * half_difference, half_difference]
+    return s, kinematic_model(len(ROAD), PARAMS), (nxt, prv), pairs
+
+
+HALF_DIFFERENCE = (REFINE_GATE_FACTOR - 1.0) * PARAMS.gate_cost / 2.0
+
+
+def test_joining_fragments_pays_the_forward_pass_gate_where_anchors_weigh():
+    s, model, links, pairs = _boundary_into_sensor_1()
+    anchors = Anchors(np.full(10, -1), np.zeros(10), weight=np.array([1.0, 0.0, 0.0, 0.0]))
+    assert fragment_ends(s, PARAMS, anchors, model, 0, links, pairs).tolist() == pytest.approx(
+        [0.0, 2 * HALF_DIFFERENCE, HALF_DIFFERENCE]
     )
     # Where the segment's anchors do not weigh (free flow), or there are none, nothing.
-    free = Anchors(np.full(4, -1), np.zeros(4), weight=np.array([0.0, 0.0]))
-    assert not fragment_ends(PARAMS, free, 1, (nxt, prv), pairs).any()
-    assert not fragment_ends(PARAMS, None, 1, (nxt, prv), pairs).any()
+    free = Anchors(np.full(10, -1), np.zeros(10), weight=np.zeros(4))
+    assert not fragment_ends(s, PARAMS, free, model, 0, links, pairs).any()
+    assert not fragment_ends(s, PARAMS, None, model, 0, links, pairs).any()
+
+
+def test_joining_fragments_pays_the_forward_pass_gate_where_vehicles_leave_or_join():
+    """A prefix that ends where vehicles leave the road, or a suffix that starts where they join
+    it (`ends.RoadEnds`), is a fragment by right: joining it pays what the forward pass would."""
+    s, model, links, pairs = _boundary_into_sensor_1()
+    model.ends = RoadEnds(np.array([3.0, 0, 0, 0, 0]), np.zeros(5))  # vehicles leave after 0 m
+    assert fragment_ends(s, PARAMS, None, model, 0, links, pairs).tolist() == pytest.approx(
+        [0.0, HALF_DIFFERENCE, 0.0]  # the loose prefix (row 1) pays, the loose suffix does not
+    )
+    model.ends = RoadEnds(np.zeros(5), np.array([0, 3.0, 0, 0, 0]))  # they join before 100 m
+    assert fragment_ends(s, PARAMS, None, model, 0, links, pairs).tolist() == pytest.approx(
+        [0.0, HALF_DIFFERENCE, HALF_DIFFERENCE]
+    )
+    # Elsewhere on the road nothing changes.
+    model.ends = RoadEnds(np.array([0, 3.0, 0, 0, 0]), np.array([0, 0, 3.0, 0, 0]))
+    assert not fragment_ends(s, PARAMS, None, model, 0, links, pairs).any()
 
 
 FAULTS = {"miss_probability": 0.1, "false_alarm_rate": 0.02, "velocity_noise": 0.03}

@@ -11,6 +11,7 @@ from roadlink.association.associators.assignment import (
 )
 from roadlink.association.associators.assignment.duplicates import duplicate_followers
 from roadlink.association.associators.assignment.edges import WindowEdges
+from roadlink.association.associators.assignment.ends import RoadEnds
 from roadlink.association.associators.assignment.gating import Gate
 from roadlink.association.associators.assignment.learning import learn_segments
 from roadlink.association.associators.assignment.matching import match
@@ -175,3 +176,27 @@ def test_a_pass_that_prices_every_link_at_once_links_what_it_links_sensor_by_sen
         assert all(
             np.array_equal(x, y, equal_nan=True) for x, y in zip(at_once, apart, strict=True)
         )
+
+
+def test_where_vehicles_join_the_road_one_beside_a_vehicle_at_its_speed_is_a_new_vehicle():
+    """A report moments after another of the same sensor at its speed may be a copy of that
+    passage, and never starts a track while its twin is linked; but past an on-ramp
+    (`ends.RoadEnds`), such a report is a vehicle that just merged in."""
+    # Vehicle a (rows 0, 1, 3) past 0, 100 and 200 m; c (rows 2, 4) joins before 100 m, 0.2 s
+    # behind a at a's speed; two more vehicles a minute before and after (rows 5-10) hold the
+    # batch's window open.
+    d = Detections.from_columns(
+        position=[0.0, 100.0, 100.0, 200.0, 200.0] + [0.0, 100.0, 200.0] * 2,
+        velocity=[20.0] * 5 + [25.0] * 6,
+        timestamp=[0.0, 5.0, 5.2, 10.0, 10.2, -60.0, -56.0, -52.0, 60.0, 64.0, 68.0],
+    )
+    params = AssignmentParams()
+    s = arrange(d, params)
+    model = segment_prior(s, params.max_skip + 1, params)
+    leader = duplicate_followers(s, params)
+    assert leader[:5].tolist() == [-1, -1, 1, -1, 3]
+    copies = build_tracks(s, model, params, leader, None, 0.0, 1.0)
+    assert copies[[2, 4]].tolist() == [-1, -1]  # taken for copies of a's reports
+    model.ends = RoadEnds(np.zeros(3), np.array([0.0, 4.0, 0.0]))
+    joined = build_tracks(s, model, params, leader, None, 0.0, 1.0)
+    assert joined[0] == joined[1] == joined[3] and joined[2] == joined[4] != joined[0]

@@ -29,6 +29,8 @@ loop (`associator`) runs them:
 - `learning`: each segment's behaviour (travel-time bias, skew and spread, speed ratio and its
   spread) and the tails, learned robustly (median, MAD) from the confident tracks' links; the
   tracks are then built again with it: a few EM-style rounds.
+- `ends`: where vehicles leave or join the road between sensors (junctions' ramps), read off the
+  first tracks: links out of and into such a sensor pay what staying unmatched saves there.
 - `refine`: the sequential pass chooses each link knowing only the past, so the tracks are then
   re-paired with hindsight: at every sensor boundary, track prefixes are matched to track
   suffixes again, each seen whole.

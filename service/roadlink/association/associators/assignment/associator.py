@@ -24,7 +24,7 @@ from roadlink.association.associators.assignment.duplicates import (
     duplicate_followers,
     join_duplicates,
 )
-from roadlink.association.associators.assignment.learning import learn_segments
+from roadlink.association.associators.assignment.learning import learn_ends, learn_segments
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import (
     AssignmentParams,
@@ -130,7 +130,7 @@ def link_and_learn(
     if leader is None:
         leader = duplicate_followers(s, params)
     track = first = np.zeros(0, dtype=np.int64)
-    anchor, chains = None, None
+    anchor, chains, ends = None, None, None
     # Without lengths a chain drawn again would be the same.
     redraw = s.features is not None and s.features.has_length()
     learned_from = None  # the tracks the current model was learned from, with these anchors
@@ -158,6 +158,11 @@ def link_and_learn(
             if sweep is not None:
                 sweep.forget()  # this round's model, which the next round's replaces
             model = learn_segments(s, track, params, prior, anchor)
+            if r == 0:
+                # From the first tracks only: tracks built with these costs break more where
+                # they apply, and learning from them again would find more ends there each round.
+                ends = learn_ends(s, track, model)
+            model.ends = ends
             learned_from = track
             if anchor is None and params.lane_anchors and params.feature_weight > 0:
                 # Lane order needs the model learned from the first tracks (the length error

@@ -88,10 +88,15 @@ class WindowEdges:
         room = s.time[down] - s.first_time[p]
         down_outside = _Outside.of(room, behind, segment.spread[p])
         edges = []
+        ends = model.ends
         for cap in unmatched:
             leaving, arriving = np.zeros(n), np.zeros(n)
             leaving[up] = up_outside.cost(cap)
             arriving[down] = down_outside.cost(cap)
+            if ends is not None:
+                # Where vehicles leave or join the road (`ends.py`): capped as the window is.
+                np.minimum(leaving + ends.leaving[s.sensor], cap, out=leaving)
+                np.minimum(arriving + ends.arriving[s.sensor], cap, out=arriving)
             edges.append(cls(leaving, arriving))
         return edges
 

@@ -7,11 +7,13 @@ spreads are shrunk towards those pooled over all segments, and its centres towar
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from roadlink.association.associators.assignment.anchors import Anchors
+from roadlink.association.associators.assignment.edges import WindowEdges
+from roadlink.association.associators.assignment.ends import RoadEnds, learn_road_ends
 from roadlink.association.associators.assignment.features import learn_features
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel, Tails
@@ -96,6 +98,13 @@ def learn_segments(
     if s.features is not None and prior.features is not None:
         model.features = learn_features(s.features, s.sensor, prior.features, links)
     return model
+
+
+def learn_ends(s: Sensors, track: IntArray, model: SegmentModel) -> RoadEnds | None:
+    """Where vehicles leave or join the road (`ends.learn_road_ends`), from the `track`s, each
+    detection near the batch's window read with `model`'s travel times."""
+    window = WindowEdges.of(s, replace(model, ends=None), 1.0)
+    return learn_road_ends(s, track, window.leaving, window.arriving)
 
 
 def confident_detections(track: IntArray, anchor: Anchors | None = None) -> IntArray:

@@ -25,6 +25,7 @@ from roadlink.association.associators.assignment.params import (
 from roadlink.association.detections import FloatArray, IntArray
 
 if TYPE_CHECKING:
+    from roadlink.association.associators.assignment.ends import RoadEnds
     from roadlink.association.associators.assignment.pace import PaceModel
 
 BoolArray = npt.NDArray[np.bool_]
@@ -185,6 +186,7 @@ class SegmentModel:
     level_tails: Tails
     features: FeatureModel | None = None
     pace: PaceModel | None = None
+    ends: RoadEnds | None = None
 
     @property
     def max_span(self) -> int:
@@ -204,4 +206,5 @@ class SegmentModel:
             self.level_tails,
             None if self.features is None else self.features.copy(),
             None if self.pace is None else self.pace.copy(),
+            self.ends,
         )

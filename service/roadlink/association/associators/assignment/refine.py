@@ -97,7 +97,8 @@ def refine_boundaries(
         tails, pairs = ends
         cost = boundary_cost(params, model, pairs, levels, s, (nxt, prv))
         cost -= anchor_bonus(pairs, anchor)
-        cost += edges.cost(pairs) + fragment_ends(params, anchor, k, (nxt, prv), pairs)
+        cost += edges.cost(pairs)
+        cost += fragment_ends(s, params, anchor, model, k - 1, (nxt, prv), pairs)
         if relink:
             # Splitting a track costs more here than declining a link did: a track the forward
             # pass built is evidence in itself, so re-pairing must pay for itself.
@@ -240,14 +241,9 @@ class Unchanged:
         self, boundary: IntArray, links: tuple[IntArray, IntArray], pairs: Pairs
     ) -> FloatArray:
         """`fragment_ends` of every boundary's candidates (`boundary`: each one's)."""
-        anchor = self.anchor
-        if anchor is None or anchor.weight is None:
-            return np.zeros(pairs.a.size)
-        nxt, prv = links
-        unheld = (nxt[pairs.a] < 0).astype(np.float64) + (prv[pairs.b] < 0)
-        difference = (REFINE_GATE_FACTOR - 1.0) * self.params.gate_cost / 2.0
-        result: FloatArray = difference * anchor.weight[boundary - 1] * unheld
-        return result
+        return fragment_ends(
+            self.s, self.params, self.anchor, self.model, boundary - 1, links, pairs
+        )
 
 
 # Candidate links judged in one call, about: boundaries with fewer are judged together.
@@ -314,27 +310,41 @@ def judge_together(confidence: FloatArray, judged: list[Judged], gate: float) ->
 
 
 def fragment_ends(
+    s: Sensors,
     params: AssignmentParams,
     anchor: Anchors | None,
-    k: int,
+    model: SegmentModel,
+    segment: int | IntArray,
     links: tuple[IntArray, IntArray],
     pairs: Pairs,
 ) -> FloatArray:
-    """What joining fragments at boundary k pays where lane order's anchors weigh.
+    """What joining fragments pays at the boundary after `segment` (each pair's, or all
+    pairs'), where lane order's anchors weigh or vehicles leave or join the road.
 
     The sweep's gate is REFINE_GATE_FACTOR times the forward pass's, so that splitting a track
     must pay for itself; but it lets two fragments (a prefix without a suffix, a suffix without
     a prefix) join at a cost the pass refused. In a queue the anchors are what holds the tracks,
     and half the detections have no partner in the batch (`edges.py`): there the sweep shifted a
-    lane's anchored chain by a vehicle to join such ends. So each end that no link holds now
-    pays the difference between the two gates' halves, in proportion to how much the segment's
-    anchors weigh (`anchors.weigh_anchors`): in full in a queue, nothing in free flow."""
-    if anchor is None or anchor.weight is None or anchor.weight[k - 1] == 0:
+    lane's anchored chain by a vehicle to join such ends. Past a junction a vehicle that left the
+    road and one that joined it are fragments by right (`ends.py`), and the sweep joined them
+    over the sensor between. So each end that no link holds now pays the difference between the
+    two gates' halves, in proportion to how much the segment's anchors weigh
+    (`anchors.weigh_anchors`: in full in a queue, nothing in free flow), and in full where its
+    sensor's vehicles leave (a prefix's end) or join (a suffix's start) the road."""
+    weight: FloatArray | float = 0.0
+    if anchor is not None and anchor.weight is not None:
+        weight = anchor.weight[segment]
+    ends = model.ends
+    if ends is None and not np.any(weight):
         return np.zeros(pairs.a.size)
     nxt, prv = links
-    unheld = (nxt[pairs.a] < 0).astype(np.float64) + (prv[pairs.b] < 0)
+    weight_a = weight_b = np.broadcast_to(np.asarray(weight, dtype=np.float64), pairs.a.shape)
+    if ends is not None:
+        weight_a = np.maximum(weight_a, ends.leaving[s.sensor[pairs.a]] > 0)
+        weight_b = np.maximum(weight_b, ends.arriving[s.sensor[pairs.b]] > 0)
+    unheld = weight_a * (nxt[pairs.a] < 0) + weight_b * (prv[pairs.b] < 0)
     difference = (REFINE_GATE_FACTOR - 1.0) * params.gate_cost / 2.0
-    result: FloatArray = difference * anchor.weight[k - 1] * unheld
+    result: FloatArray = difference * unheld
     return result
 
 

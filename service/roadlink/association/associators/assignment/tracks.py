@@ -201,7 +201,10 @@ def build_tracks(
                 track[linked_b] = track[linked_a]
                 tail[track[linked_b]] = linked_b
                 made.append((linked_a, linked_b))
-        born = _births(s.members(q), linked_b, track, copies)
+        # Where vehicles join the road (`ends.py`), one beside a vehicle at its speed is new,
+        # not a copy of that vehicle's report.
+        joins = model.ends is not None and model.ends.arriving[q] > 0
+        born = _births(s.members(q), linked_b, track, None if joins else copies)
         track[born] = tail.size + np.arange(born.size)
         tail = np.concatenate([tail, born])
         if foreseen is not None and not same(track[s.members(q)], foreseen.expected[s.members(q)]):

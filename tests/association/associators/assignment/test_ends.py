@@ -1,0 +1,89 @@
+"""Where vehicles leave or join the road between sensors (`assignment/ends.py`): read off the
+tracks, told from tracks that merely broke and from queues that store vehicles, and what they
+change on a motorway with junctions."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment import associator as assignment_associator
+from roadlink.association.associators.assignment.ends import RoadEnds, learn_road_ends
+from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.csvio import read_detections_csv
+from roadlink.association.detections import Detections
+from roadlink.association.pipeline import associate
+from tests.association.associators.assignment.roads import steady_vehicles
+
+COMMITTED_SUMO = Path(__file__).parents[3] / "data" / "sumo"
+PARAMS = AssignmentParams()
+ROAD = [0.0, 250.0, 500.0, 750.0, 1000.0]
+N = 120
+
+
+def _traffic(speeds: np.ndarray | None = None) -> tuple[Detections, np.ndarray]:
+    """N vehicles 2 s apart at 25-32 m/s past ROAD, sensor by sensor, and each row's vehicle."""
+    rng = np.random.default_rng(7)
+    speed = rng.uniform(25.0, 32.0, N) if speeds is None else speeds
+    d = steady_vehicles(np.arange(N) * 2.0, speed, ROAD)
+    return d, np.tile(np.arange(N), len(ROAD))
+
+
+def _learn(d: Detections, track: np.ndarray, keep: np.ndarray) -> RoadEnds | None:
+    """What `learn_road_ends` reads from the `keep`t rows' tracks (none near the window)."""
+    s = arrange(d.take(np.flatnonzero(keep)), PARAMS)
+    zeros = np.zeros(int(keep.sum()))
+    return learn_road_ends(s, track[keep], zeros, zeros)
+
+
+def test_a_sensor_past_which_vehicles_leave_and_one_before_which_they_join_are_found():
+    d, vehicle = _traffic()
+    sensor = np.repeat(np.arange(len(ROAD)), N)
+    leaver = vehicle % 5 == 0  # a fifth leave between 250 and 500 m
+    joiner = vehicle % 4 == 1  # a quarter join between 500 and 750 m
+    keep = ~(leaver[vehicle] & (sensor >= 2)) & ~(joiner[vehicle] & (sensor <= 2))
+    ends = _learn(d, vehicle, keep)
+    assert ends is not None
+    assert np.flatnonzero(ends.leaving).tolist() == [1]
+    assert np.flatnonzero(ends.arriving).tolist() == [3]
+    # 2 log (1 + excess share / typical share): a fifth of the vehicles against the 1 % floor.
+    assert ends.leaving[1] == pytest.approx(2 * np.log1p(24 / (0.01 * N)), rel=1e-9)
+
+
+def test_tracks_that_break_are_not_vehicles_leaving():
+    """A link the tracks missed ends a track at one sensor and starts one at the next alike."""
+    d, vehicle = _traffic()
+    sensor = np.repeat(np.arange(len(ROAD)), N)
+    track = vehicle.copy()
+    broken = (vehicle % 5 == 0) & (sensor >= 2)
+    track[broken] += N  # a fifth of the tracks break between 250 and 500 m
+    assert _learn(d, track, np.ones(len(d), dtype=bool)) is None
+
+
+def test_where_traffic_crawls_the_counts_are_not_read():
+    """A queue stores vehicles between two sensors, so their counts need not match."""
+    speeds = np.random.default_rng(7).uniform(25.0, 32.0, N)
+    d, vehicle = _traffic(speeds)
+    crawling = d.position == 500.0
+    d = Detections.from_columns(
+        d.position, np.where(crawling, 2.0, d.velocity), d.timestamp, target=list(d.target)
+    )
+    sensor = np.repeat(np.arange(len(ROAD)), N)
+    keep = ~((vehicle % 5 == 0) & (sensor >= 2))
+    assert _learn(d, vehicle, keep) is None
+
+
+def test_on_a_motorway_with_junctions_vehicles_that_leave_and_join_are_not_linked(monkeypatch):
+    """The committed seed-0 case of sumo-junctions (no lanes or lengths): without the road's
+    ends, vehicles that left before one sensor were linked over it to vehicles that joined
+    after it, and the vehicles that merged in took links from those they joined."""
+    d = read_detections_csv((COMMITTED_SUMO / "sumo-junctions.csv").read_text())
+    result = associate(d, "assignment")
+    monkeypatch.setattr(assignment_associator, "learn_ends", lambda *args: None)
+    before = associate(d, "assignment")
+    assert result.metrics is not None and before.metrics is not None
+    assert result.metrics.accuracy >= 0.90
+    assert result.metrics.accuracy >= before.metrics.accuracy + 0.02
