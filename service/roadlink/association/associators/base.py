@@ -19,9 +19,10 @@ Progress = Callable[[float], None]
 
 
 class AssociatorParams(BaseModel):
-    """Base of every associator's parameters: unknown names are an error, not silently ignored."""
+    """Base of every associator's parameters: unknown names are an error, not silently ignored,
+    and so is an infinite or NaN number (the result's JSON could not hold it)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class AssociationError(ValueError):

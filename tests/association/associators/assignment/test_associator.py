@@ -341,6 +341,23 @@ def test_no_track_crosses_a_gap_faster_than_its_sensors_ever_measured():
     assert (d.position[b] - d.position[a] <= 2.0 * top * travel).all()
 
 
+@pytest.mark.parametrize("params", [{"feature_weight": 10.0}, {"gate_cost": 200.0}])
+def test_no_link_runs_backwards_in_time_whatever_the_gate(params):
+    """The gate's slack for the timestamps' error grows with its reach, and a feature's bonus
+    widens the gate: at feature_weight 10 links ran 10-17 s backwards in time before the
+    arrival window was held to a's own time."""
+    config = preset(
+        "large", n_targets=300, lanes=2, vehicle_lengths=True, vehicle_classes=True
+    ).model_copy(update={"miss_probability": 0.05})
+    d = simulate(config, seed=1).detections
+    groups = associate(d, "assignment", params).groups
+    order = np.lexsort((d.timestamp, d.position, groups))
+    a, b = order[:-1], order[1:]
+    linked = (groups[a] == groups[b]) & (groups[a] >= 0) & (d.position[b] > d.position[a])
+    assert linked.sum() > 1000
+    assert (d.timestamp[b[linked]] > d.timestamp[a[linked]]).all()
+
+
 COMMITTED_SUMO = Path(__file__).parents[3] / "data" / "sumo"
 # `assignment`'s accuracy on the committed seed-0 cases (benchmarks/sumo_accuracy.py measures
 # them over more seeds), less a margin of 3 points: the test catches a regression, not a wobble.

@@ -4,8 +4,11 @@ detections' own time scale, and the defaults where that is seconds."""
 import pytest
 from pydantic import ValidationError
 
+from roadlink.association.associators import AssociationError
 from roadlink.association.associators.assignment import AssignmentParams, within_time_scale
+from roadlink.association.associators.assignment.params import MAX_COST
 from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.pipeline import parse_params
 from roadlink.simulation import preset, simulate
 from tests.helpers import in_hours
 
@@ -34,3 +37,22 @@ def test_the_contracts_velocity_names_are_the_parameters_and_their_bounds_are_ch
     for name in contract:
         with pytest.raises(ValidationError, match=name):
             AssignmentParams(**{name: -1.0})
+
+
+@pytest.mark.parametrize("value", ["inf", "-inf", "nan"])
+def test_no_parameter_of_any_associator_may_be_infinite_or_nan(value):
+    """The result's JSON holds the parameters it ran with, and JSON has no infinity."""
+    for name in ("miss_cost", "timestamp_noise", "duplicate_window", "min_track_evidence"):
+        with pytest.raises(AssociationError, match=name):
+            parse_params("assignment", {name: value})
+    with pytest.raises(AssociationError, match="length_weight"):
+        parse_params("kmeans", {"length_weight": value})
+
+
+def test_costs_are_bounded_where_every_pair_would_become_a_candidate():
+    """gate_cost 1e14 ran for minutes on 5,000 detections (every pair within the time gate a
+    candidate link), and inf failed inside the matching."""
+    assert AssignmentParams(gate_cost=MAX_COST).gate_cost == MAX_COST
+    for name in ("gate_cost", "miss_cost", "min_track_evidence"):
+        with pytest.raises(ValidationError, match=name):
+            AssignmentParams(**{name: 1e14})

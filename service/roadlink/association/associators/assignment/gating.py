@@ -321,7 +321,9 @@ def _arrival_window(
     p = s.sensor[d.a]
     gap = s.positions[q] - s.positions[p]
     quickest = gap / (FASTEST_SHARE * np.maximum(s.top_speed[p], s.top_speed[q]))
-    lo = np.maximum(lo, t_a + quickest - slack)
+    # Nor before a's own time, however wide the timestamps' slack grows with the gate (or with a
+    # feature's bonus, which widens the gate): a vehicle reaches the next sensor after it.
+    lo = np.maximum(lo, t_a + np.maximum(quickest - slack, 0.0))
     hi = t_a + (d.from_a + d.to_b * slowest) * (1.0 + reach * relative) + slack
     return lo, hi
 

@@ -99,6 +99,13 @@ DUPLICATE_WINDOW_SHARE = 0.25
 TIMESTAMP_NOISE_SHARE = 0.02
 
 
+# The largest cost a parameter may set (a link's cost is a sum of -2 log densities: 200 is a
+# residual of 14 standard deviations). Beyond it every pair within the time gate is a candidate
+# link, and the matching's work grows with their square (1e14 ran for minutes on 5,000
+# detections).
+MAX_COST = 200.0
+
+
 class AssignmentParams(AssociatorParams):
     max_skip: int = Field(
         default=2,
@@ -110,6 +117,7 @@ class AssignmentParams(AssociatorParams):
     gate_cost: float = Field(
         default=18.0,
         gt=0,
+        le=MAX_COST,
         description="Largest cost of a link (a sum of -2 log densities of standardised "
         "residuals: r^2 in the core, flatter in the learned heavy tails, so 18 is about four "
         "core standard deviations); leaving a detection unlinked "
@@ -119,6 +127,7 @@ class AssignmentParams(AssociatorParams):
     miss_cost: float = Field(
         default=6.0,
         ge=0,
+        le=MAX_COST,
         description="Extra cost per sensor skipped by a link: how much a consecutive link is "
         "preferred to a link over a missed detection.",
     )
@@ -245,6 +254,7 @@ class AssignmentParams(AssociatorParams):
     min_track_evidence: float = Field(
         default=8.0,
         ge=0,
+        le=MAX_COST,
         description="Least total saving of a track's links over leaving its detections apart "
         "(the sum of gate_cost - link cost); weaker tracks are taken for chained false alarms. "
         "Higher drops more doubtful short tracks; 0 keeps every track.",
