@@ -9,10 +9,12 @@ from roadlink.association.associators.assignment import AssignmentParams
 from roadlink.association.associators.assignment.duplicates import (
     duplicate_followers,
     join_duplicates,
+    repeated_reports,
 )
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.detections import Detections
 from roadlink.simulation import preset, simulate
+from tests.association.associators.assignment.roads import steady_vehicles
 
 
 def test_a_report_moments_after_one_of_the_same_speed_may_duplicate_it():
@@ -35,22 +37,29 @@ def test_the_reports_each_may_duplicate_are_each_sensors_own_lag_by_lag(
     window: float, name: str
 ) -> None:
     # Every sensor's reports at once, lag after lag (few reports a sensor), or sensor by sensor
-    # (the congested preset's many): the leaders found sensor by sensor.
+    # (the congested preset's many): the leaders found report by report, in time order, each
+    # the nearest earlier alike report, or where that is a copy, its root passage if that is
+    # close and alike too.
     params = AssignmentParams(duplicate_window=window, duplicate_velocity_tolerance=0.3)
     d = simulate(preset(name, duplicate_probability=0.3, false_alarm_rate=0.1), seed=3)
     s = arrange(d.detections, params)
     leader = np.full(s.time.size, -1, dtype=np.int64)
     tolerance = np.log1p(params.duplicate_velocity_tolerance)
+
+    def alike(i: int, j: int) -> bool:
+        return bool(
+            s.time[i] - s.time[j] <= params.duplicate_window
+            and abs(s.log_speed[i] - s.log_speed[j]) <= tolerance
+        )
+
     for k in range(s.positions.size):
-        m = s.members(k)
-        for lag in range(1, m.size):
-            later, earlier = m[lag:], m[:-lag]
-            close = s.time[later] - s.time[earlier] <= params.duplicate_window
-            if not close.any():
-                break
-            alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
-            fresh = alike & (leader[later] < 0)
-            leader[later[fresh]] = earlier[fresh]
+        m = s.members(k).tolist()
+        for n, i in enumerate(m):
+            nearest = next((j for j in reversed(m[:n]) if alike(i, j)), -1)
+            if nearest >= 0 and leader[nearest] >= 0:
+                root = int(leader[nearest])
+                nearest = root if alike(i, root) else -1
+            leader[i] = nearest
     found = duplicate_followers(s, params)
     assert (found >= 0).sum() > 3 and np.array_equal(found, leader)
 
@@ -122,3 +131,51 @@ def test_a_copy_in_a_target_is_reported_beside_its_twin_without_a_link_of_its_ow
     # The matrix lists a copy beside its twin in one cell, its link confidence empty.
     cells = [line for line in result.to_matrix_csv().splitlines()[1:] if ";" in line]
     assert len(cells) == len(with_copy)
+
+
+def test_speeds_below_the_floor_are_not_alike():
+    """In a crawl every reading under `velocity_floor` of the median is floored to one speed:
+    what the readings were is unknown, so two vehicles crawling past are not one passage."""
+    d = Detections.from_columns(
+        position=[0.0] * 4 + [100.0] * 4,
+        velocity=[0.3, 0.5, 20.0, 20.0] + [20.0] * 4,
+        timestamp=[0.0, 0.3, 10.0, 10.2, 20.0, 25.0, 30.0, 35.0],
+    )
+    params = AssignmentParams()
+    s = arrange(d, params)
+    assert s.speed[0] == s.speed[1] == s.speed_floor  # both floored to one speed
+    assert duplicate_followers(s, params)[:4].tolist() == [-1, -1, -1, 2]
+
+
+def test_a_copy_copies_a_passage_not_another_copy():
+    """A detector stuck repeating one reading every 0.3 s (the window 0.5 s): each report
+    within the window of the passage it copies pairs with it, and the next starts anew."""
+    d = Detections.from_columns(
+        position=[0.0] * 6 + [100.0],
+        velocity=[20.0] * 7,
+        timestamp=[0.0, 0.3, 0.6, 0.9, 1.2, 1.5, 30.0],
+    )
+    params = AssignmentParams(duplicate_window=0.5)
+    s = arrange(d, params)
+    assert duplicate_followers(s, params)[:6].tolist() == [-1, 0, -1, 2, -1, 4]
+    # Three reports within the window of the first are all its copies.
+    wider = AssignmentParams(duplicate_window=0.7)
+    assert duplicate_followers(arrange(d, wider), wider)[:3].tolist() == [-1, 0, 0]
+
+
+def test_a_batch_sent_twice_groups_as_the_batch_once():
+    """A gateway that sends its batch again repeats every report exactly: each copy joins its
+    vehicle's target, none is a vehicle of its own."""
+    once = steady_vehicles([0.0, 2.0], [20.0, 25.0], [0.0, 100.0, 200.0, 300.0])
+    twice = Detections.from_columns(
+        position=np.tile(once.position, 2),
+        velocity=np.tile(once.velocity, 2),
+        timestamp=np.tile(once.timestamp, 2),
+        target=list(once.target) * 2,
+    )
+    s = arrange(twice, AssignmentParams())
+    leader = duplicate_followers(s, AssignmentParams())
+    assert repeated_reports(s, leader).sum() == len(once)
+    result = associate(twice, "assignment")
+    assert result.n_targets == 2 and result.metrics is not None
+    assert result.metrics.accuracy == 1.0

@@ -10,6 +10,7 @@ that vehicle's detections, and a user (and the scoring) finds it there rather th
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from roadlink.association.associators.assignment.features import NO_CLASS, SensorFeatures
 from roadlink.association.associators.assignment.gating import GATE_AT_ONCE
@@ -22,12 +23,17 @@ def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
     """For every detection, the earlier report of the same sensor it may duplicate (-1 if none):
     within `duplicate_window` in time and `duplicate_velocity_tolerance` in speed, and, where
     both report them, in the same lane and of the same class (a copy reads them again; a vehicle
-    in the next lane at the same speed is another vehicle)."""
+    in the next lane at the same speed is another vehicle).
+
+    A copy copies a passage: its leader is never a copy itself, so a detector stuck repeating
+    one reading makes pairs, not one passage of a hundred reports. Speeds floored (read below
+    `velocity_floor` of the median: a crawl, a stop) are not alike: what they were is unknown."""
     n = s.time.size
     leader = np.full(n, -1, dtype=np.int64)
     if params.duplicate_window <= 0:
         return leader
     tolerance = np.log1p(params.duplicate_velocity_tolerance)
+    readable = s.speed > s.speed_floor
     # With few reports a sensor (a paper-size batch), every sensor's at once, lag after lag (a
     # sensor's times ascend, and are finite, so once no two reports `lag` apart are close, none
     # further apart are); else sensor by sensor, so that one sensor's crowd of close reports
@@ -43,11 +49,45 @@ def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
             if not close.any():
                 break
             alike = close & (np.abs(s.log_speed[later] - s.log_speed[earlier]) <= tolerance)
+            alike &= readable[later] & readable[earlier]
             if s.features is not None:
                 alike &= _features_agree(s.features, later, earlier)
             fresh = alike & (leader[later] < 0)
             leader[later[fresh]] = earlier[fresh]
+    _lead_from_roots(s, leader, params.duplicate_window, tolerance)
     return leader
+
+
+def repeated_reports(s: Sensors, leader: IntArray) -> npt.NDArray[np.bool_]:
+    """Whether each report repeats its leader exactly (the same time and speed, the same lane,
+    length and class where reported): a gateway that sent a batch, or a row, again. Two
+    vehicles side by side differ in something; such a report is never a vehicle of its own."""
+    copy = np.flatnonzero(leader >= 0)
+    first = leader[copy]
+    same = (s.time[copy] == s.time[first]) & (s.speed[copy] == s.speed[first])
+    f = s.features
+    if f is not None:
+        same &= (f.lane[copy] == f.lane[first]) & (f.vehicle_class[copy] == f.vehicle_class[first])
+        length, other = f.log_length[copy], f.log_length[first]
+        same &= (length == other) | (np.isnan(length) & np.isnan(other))
+    repeated = np.zeros(leader.size, dtype=bool)
+    repeated[copy[same]] = True
+    return repeated
+
+
+def _lead_from_roots(s: Sensors, leader: IntArray, window: float, tolerance: float) -> None:
+    """Where a report's leader is a copy itself, it copies that copy's root passage if that lies
+    within the window and speed tolerance too (a passage reported three times), and is a passage
+    of its own if not. In time order, so every leader's own leader is final when it is read."""
+    copies = np.flatnonzero(leader >= 0)
+    chained = copies[leader[leader[copies]] >= 0]
+    for c in chained[np.argsort(s.time[chained], kind="stable")].tolist():
+        root = int(leader[leader[c]])
+        if root < 0:
+            continue  # its leader became a passage of its own, earlier in this loop
+        close = s.time[c] - s.time[root] <= window
+        alike = abs(s.log_speed[c] - s.log_speed[root]) <= tolerance
+        leader[c] = root if close and alike else -1
 
 
 def _features_agree(f: SensorFeatures, a: IntArray, b: IntArray) -> np.ndarray:

@@ -52,6 +52,7 @@ class Sensors:
     median_speed: FloatArray  # the median (floored) speed at each sensor
     features: SensorFeatures | None = None  # lane, length, class, where detectors report them
     clock_offsets: FloatArray | None = None  # seconds taken from each sensor's times (`clocks`)
+    speed_floor: float = 0.0  # what `speed` is floored at: a speed there was read lower
     _reaching: dict[int, tuple[IntArray, IntArray]] = field(default_factory=dict, repr=False)
     _starts: list[int] = field(default_factory=list, repr=False)  # `start` as Python ints
 
@@ -163,4 +164,5 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         np.array([median(speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]),
         SensorFeatures.of(detections),
         offsets,
+        floor,
     )
