@@ -41,6 +41,12 @@ def test_magnitudes_beyond_the_limit_are_problems_and_the_limit_is_not():
     assert "beyond the limit" in problems[0].message
 
 
+def test_a_value_just_beyond_the_limit_is_shown_as_it_is_not_rounded_onto_it():
+    _, rows, problems = checked([1.0, MAX_ABS_VALUE + 0.5])
+    assert rows == [(2, "timestamp")]
+    assert problems[0].message == "magnitude 1000000000000.5 is beyond the limit 1e+12"
+
+
 def test_an_integer_beyond_any_float_is_a_problem_not_a_crash():
     # Python's ints have no limit; numpy cannot make a float of 10**400 (OverflowError).
     _, rows, problems = checked([1.0, 10**400, -(10**400), 2])

@@ -42,6 +42,12 @@ def test_lengths_keep_nan_where_unmeasured():
     assert lengths[[0, 3]].tolist() == [4.5, MAX_LENGTH] and np.isnan(lengths[[1, 2]]).all()
 
 
+def test_a_length_just_over_the_limit_is_shown_as_it_is_not_rounded_onto_it():
+    problems: list[Problem] = []
+    length_column(1, [MAX_LENGTH + 0.0001], problems)
+    assert problems[0].message == "must be > 0 and at most 100, got 100.0001"
+
+
 def test_problems_in_a_column_with_blanks_are_numbered_as_input_rows():
     problems: list[Problem] = []
     length_column(5, [None, "", 4.0, "x", -1.0], problems)

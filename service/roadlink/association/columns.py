@@ -82,7 +82,7 @@ def float_column(name: str, values: object, problems: list[Problem]) -> FloatArr
             Problem(
                 int(row) + 1,
                 name,
-                f"magnitude {float(out[row]):g} is beyond the limit {MAX_ABS_VALUE:g}",
+                f"magnitude {abs(float(out[row]))!r} is beyond the limit {MAX_ABS_VALUE:g}",
             )
         )
     return out

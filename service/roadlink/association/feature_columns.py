@@ -67,7 +67,7 @@ def length_column(n: int, given: RawColumn | None, problems: list[Problem]) -> F
             Problem(
                 int(row) + 1,
                 "length",
-                f"must be > 0 and at most {MAX_LENGTH:g}, got {float(lengths[row]):g}",
+                f"must be > 0 and at most {MAX_LENGTH:g}, got {float(lengths[row])!r}",
             )
         )
     return lengths
