@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from roadlink.association import associate
 from roadlink.association.associators.assignment import AssignmentParams
 from roadlink.association.associators.assignment.anchors import Anchors
 from roadlink.association.associators.assignment.confirmation import (
@@ -16,6 +17,7 @@ from roadlink.association.associators.assignment.confirmation import (
 )
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.detections import Detections, concatenate
+from roadlink.simulation import preset, simulate
 from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
 
 PARAMS = AssignmentParams()
@@ -117,3 +119,26 @@ def test_a_track_start_and_end_are_explained_by_the_road_or_the_window():
     # V0's detection at 400 m is at the last sensor; V1's at 300 m (t = 22) would reach 400 m
     # after the batch ends (26 s); V0's at 100 m (t = 5) would not.
     assert ends_explained(s, model, np.array([8, 7, 2])).tolist() == [True, True, False]
+
+
+def _in_units(d: Detections, position: float = 1.0, time: float = 1.0) -> Detections:
+    return Detections.from_columns(
+        d.position * position, d.velocity, d.timestamp * time, target=list(d.target)
+    )
+
+
+@pytest.mark.parametrize(
+    "case",
+    ["positions in km", "times in ms", "road numbered against the traffic"],
+)
+def test_a_batch_whose_units_or_direction_fit_no_vehicle_says_so(case, caplog):
+    d = simulate(preset("medium"), seed=0).detections
+    bad = {
+        "positions in km": _in_units(d, position=1e-3),
+        "times in ms": _in_units(d, time=1e3),
+        "road numbered against the traffic": _in_units(d, position=-1.0),
+    }[case]
+    result = associate(bad, "assignment")
+    assert any("could be linked to another: check that positions" in w for w in result.warnings)
+    assert "matching units" in caplog.text
+    assert not associate(d, "assignment").warnings

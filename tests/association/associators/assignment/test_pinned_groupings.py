@@ -39,6 +39,9 @@ A copy that copies a passage, never another copy, speeds under the floor never a
 report sent again never a vehicle of its own (`duplicates.py`, session 23: a stuck detector's
 repeats, a crawl's floored speeds and a batch sent twice had chained into one target) moved
 the cases with copies: faulty traffic and the congested preset with faults.
+The batch's window taken as every sensor's (`edges.py`, session 23: a sensor that fell quiet
+part-way had ended its upstream neighbour's window) moved the cases with queues, whose window
+edges cost most, and the faulty ones.
 When a change of the METHOD moves a grouping on purpose, print the new digests with
 `python -m tests.association.associators.assignment.test_pinned_groupings` and say why in the
 commit.
@@ -58,26 +61,26 @@ from roadlink.association.csvio import read_detections_csv
 DATA = Path(__file__).parents[3] / "data"
 
 PINNED: dict[tuple[str, tuple[tuple[str, float], ...]], str] = {
-    ("sumo/sumo-bottleneck", ()): "faf466eec1487a28",
+    ("sumo/sumo-bottleneck", ()): "aef694d427a6fc19",
     ("sumo/sumo-dense", ()): "6149ef2dcb2d64fa",
     ("sumo/sumo-faulty", ()): "df39f89e94978804",
     ("sumo/sumo-freeflow", ()): "4410844f39819332",
     ("sumo/sumo-irregular", ()): "fdf5a26e3eca1905",
-    ("sumo/sumo-queue", ()): "b7aee117398033f8",
-    ("sumo/sumo-stopgo", ()): "6146f1c4436e739e",
+    ("sumo/sumo-queue", ()): "8978c3ffe64a1556",
+    ("sumo/sumo-stopgo", ()): "48b3bd2e1f9d1800",
     ("sumo-features/sumo-bottleneck", ()): "615934d92871137c",
     ("sumo-features/sumo-dense-speed6", ()): "6116fe445fa86301",
     ("sumo-features/sumo-freeflow", ()): "2dc3133c2c5d6eae",
-    ("sumo-features/sumo-queue", ()): "efc283f0b2562370",
+    ("sumo-features/sumo-queue", ()): "b07005ed8517cbde",
     ("sumo-features/sumo-stopgo", ()): "904d2f11535c004b",
     ("presets/congested-seed0-faults", ()): "5bce0f4289dd9115",
     ("presets/large-seed1", ()): "377c5807b2719eac",
     ("presets/small-seed2-faults", ()): "d3bc59c130bfe561",
     ("sumo/sumo-dense", (("refine_sweeps", 0),)): "dfeee259de70ab93",
     ("sumo/sumo-dense", (("min_confidence", 0.5),)): "c7d39e77edf96970",
-    ("sumo/sumo-faulty", (("em_rounds", 0),)): "ef606e935ed50121",
-    ("sumo-features/sumo-stopgo", (("lane_anchors", False),)): "cc54162cd58a9b30",
-    ("sumo-features/sumo-queue", (("feature_weight", 0.0),)): "279d658eb6ea083f",
+    ("sumo/sumo-faulty", (("em_rounds", 0),)): "2d410fa2b3c3b398",
+    ("sumo-features/sumo-stopgo", (("lane_anchors", False),)): "3380b5673a996c2d",
+    ("sumo-features/sumo-queue", (("feature_weight", 0.0),)): "a435cdaaf275f42d",
 }
 
 

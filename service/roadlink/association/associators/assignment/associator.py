@@ -19,7 +19,10 @@ from roadlink.association.associators.assignment.confidence import (
     cut_weak_links,
     link_confidence,
 )
-from roadlink.association.associators.assignment.confirmation import confirm_targets
+from roadlink.association.associators.assignment.confirmation import (
+    confirm_targets,
+    few_links_warnings,
+)
 from roadlink.association.associators.assignment.duplicates import (
     duplicate_followers,
     join_duplicates,
@@ -92,6 +95,9 @@ class AssignmentAssociator(Associator):
         del sweep
         target = confirm_targets(s, model, params, track, anchor)
         target, self.link_confidence = cut_weak_links(s, target, confidence, params.min_confidence)
+        for warning in few_links_warnings(s, target):
+            LOG.warning("%s", warning)
+            self.warnings += (warning,)
         return join_duplicates(target, leader)
 
 

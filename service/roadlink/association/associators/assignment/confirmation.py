@@ -145,3 +145,44 @@ def _longest_travel(s: Sensors, model: SegmentModel, a: IntArray, p: IntArray) -
     gap = s.positions[np.minimum(p + 1, s.positions.size - 1)] - s.positions[p]
     spread = LONGEST_TRAVEL_SPREADS * model.time_spread[p, 1]
     return gap * np.exp(model.log_bias[p, 1] + spread) / s.speed[a]
+
+
+# Fewer linked detections than this share (of a batch of at least FEW_LINKS_MIN detections)
+# says the detections' units or direction are off, not the traffic.
+FEW_LINKS_SHARE = 0.2
+FEW_LINKS_MIN = 20
+
+
+def few_links_warnings(s: Sensors, target: IntArray) -> tuple[str, ...]:
+    """A sentence for the result where almost no detection could be linked to another: positions
+    in km with speeds in m/s (every travel time a thousand times shorter than predicted), times
+    in milliseconds, or positions that decrease in the direction of travel link nothing, and
+    the result would otherwise only say that every detection stands alone."""
+    if target.size < FEW_LINKS_MIN:
+        return ()
+    sizes = np.bincount(target[target >= 0])
+    linked = float(sizes[sizes >= 2].sum()) / target.size
+    if linked >= FEW_LINKS_SHARE and not _against_the_traffic(s):
+        return ()
+    return (
+        f"only {linked:.0%} of the detections could be linked to another: check that positions, "
+        "timestamps and speeds are in matching units (speeds in m/s over positions in km, or "
+        "times in milliseconds, fit no vehicle) and that positions grow in the direction of "
+        "travel",
+    )
+
+
+def _against_the_traffic(s: Sensors) -> bool:
+    """Whether the detections fit vehicles driving towards decreasing positions far better than
+    towards increasing ones: how many detections at each sensor find one at the next sensor
+    within 5 % of the time their speed takes over the gap later, against earlier."""
+    ahead = behind = 0
+    for p in range(s.positions.size - 1):
+        a, times = s.members(p), s.sorted_time[s.start[p + 1] : s.start[p + 2]]
+        gap = (s.positions[p + 1] - s.positions[p]) / s.speed[a]
+        for sign in (1.0, -1.0):
+            lo = np.searchsorted(times, s.time[a] + sign * gap - 0.05 * gap)
+            hi = np.searchsorted(times, s.time[a] + sign * gap + 0.05 * gap, side="right")
+            found = int(((hi - lo) > 0).sum())
+            ahead, behind = (ahead + found, behind) if sign > 0 else (ahead, behind + found)
+    return behind >= FEW_LINKS_MIN and behind > 2 * ahead

@@ -71,21 +71,24 @@ class WindowEdges:
             return [cls(np.zeros(n), np.zeros(n)) for _ in unmatched]
         segment = _Segments.of(s, model)
         n_segments = s.positions.size - 1
-        up = _near(s, range(n_segments), s.last_time[1:], segment.leaving_reach(s), before=False)
+        # The batch's window, every sensor's: one that stopped reporting part-way through (or
+        # started late) missed the vehicles after (before) that, which links over it bridge.
+        opens, closes = float(s.first_time.min()), float(s.last_time.max())
+        closing = np.full(n_segments, closes)
+        up = _near(s, range(n_segments), closing, segment.leaving_reach(s), before=False)
         p = s.sensor[up]
         ahead = segment.bias[p] + np.log(
             travel_time(segment.gap[p], s.speed[up], s.median_speed[p + 1], segment.skew[p])
         )
-        room = s.last_time[p + 1] - s.time[up]
+        room = closes - s.time[up]
         up_outside = _Outside.of(room, ahead, segment.spread[p])
-        down = _near(
-            s, range(1, n_segments + 1), s.first_time[:-1], segment.arriving_reach(s), before=True
-        )
+        opening = np.full(n_segments, opens)
+        down = _near(s, range(1, n_segments + 1), opening, segment.arriving_reach(s), before=True)
         p = s.sensor[down] - 1
         behind = segment.bias[p] + np.log(
             travel_time(segment.gap[p], s.median_speed[p], s.speed[down], segment.skew[p])
         )
-        room = s.time[down] - s.first_time[p]
+        room = s.time[down] - opens
         down_outside = _Outside.of(room, behind, segment.spread[p])
         edges = []
         ends = model.ends

@@ -44,6 +44,9 @@ PRIOR_WEAK_SUPPORT = 1.0
 # Fewer sampled detections than this cannot reach that significance (a handful of targets): their
 # mode is taken as it is, as long as it stands above the background at all.
 PRIOR_TEST_SAMPLE = 40
+# A segment either of whose sensors saw fewer detections than this has no mode: the kinematic
+# prediction stands.
+PRIOR_MIN_DETECTIONS = 3
 # The histogram of pairs is smoothed with this kernel (the variance of a smoothed count with its
 # square, counts being Poisson); every variance gets this pseudo-count, so no bin is ever certain.
 PRIOR_SMOOTHING = (1.0, 2.0, 1.0)

@@ -14,6 +14,7 @@ from roadlink.association.associators.assignment.params import (
     PRIOR_BACKGROUND_PAIRS,
     PRIOR_BIN,
     PRIOR_LOG_RANGE,
+    PRIOR_MIN_DETECTIONS,
     PRIOR_PEAK_BINS,
     PRIOR_PSEUDO_COUNT,
     PRIOR_SAMPLE,
@@ -80,6 +81,11 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
                 weak[p] = confirmed
     few = [p for p, sample in enumerate(samples) if sample.size < PRIOR_TEST_SAMPLE]
     log_bias[few, 1] = few_targets_priors(s, [samples[p] for p in few], np.array(few) + 1)
+    # A mode needs true pairs to pile up: where either sensor saw only a vehicle or two (it
+    # failed, or came online at the batch's end), the one bin a pair falls in is as high as any,
+    # and the kinematic prediction stands.
+    seen = np.diff(s.start)
+    log_bias[:-1, 1][np.minimum(seen[:-1], seen[1:]) < PRIOR_MIN_DETECTIONS] = 0.0
 
     # A typical target's travel time over every segment, and its kinematic prediction; every
     # segment of a span at once (the same numbers as segment by segment: the sums add the
