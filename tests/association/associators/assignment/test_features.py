@@ -11,6 +11,8 @@ import pytest
 
 from roadlink.association import associate
 from roadlink.association.associators.assignment.features import (
+    MAX_CLASSES,
+    NO_CLASS,
     SensorFeatures,
     feature_cost,
     learn_features,
@@ -138,3 +140,21 @@ def test_the_length_error_is_learned_from_the_links():
     prior = prior_features(f, sensor, 2, 1)
     links = [(np.arange(n), n + np.arange(n))]
     assert learn_features(f, sensor, prior, links).length_spread == pytest.approx(0.07, rel=0.1)
+
+
+def test_a_vocabulary_of_thousands_of_classes_keeps_its_commonest():
+    """A free-text class field (every vehicle its own word) would make the class confusion
+    matrix the square of the vocabulary: 10,000 classes took 52 s and 800 MB. The MAX_CLASSES
+    commonest classes are read, the rest as not reported."""
+    n = 3 * MAX_CLASSES
+    words = ["car"] * 10 + ["truck"] * 5 + [f"w{i}" for i in range(n)]
+    d = Detections.from_columns(
+        np.zeros(len(words)),
+        np.full(len(words), 20.0),
+        np.arange(len(words)) * 2.0,
+        vehicle_class=words,
+    )
+    f = SensorFeatures.of(d)
+    assert f is not None and f.n_classes == MAX_CLASSES
+    assert f.vehicle_class[0] >= 0 and f.vehicle_class[10] >= 0  # car and truck are kept
+    assert (f.vehicle_class == NO_CLASS).sum() == len(words) - 10 - 5 - (MAX_CLASSES - 2)

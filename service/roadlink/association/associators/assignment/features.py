@@ -30,6 +30,8 @@ from roadlink.association.detections import NO_LANE, Detections, FloatArray, Int
 
 # A detection whose class is not reported (`SensorFeatures.vehicle_class`).
 NO_CLASS = -1
+# The most classes a batch's vocabulary is read with (the commonest; see `SensorFeatures.of`).
+MAX_CLASSES = 64
 # Before any track is learned: a relative length error of 10 % (a loop's is 5-10 %).
 PRIOR_LENGTH_SPREAD = 0.10
 # A measured spread below this is taken as this: lengths are never exact.
@@ -67,11 +69,19 @@ class SensorFeatures:
         if not detections.features:
             return None
         reported = detections.has_vehicle_class
-        names = np.unique(detections.vehicle_class[reported].astype(str))
-        vehicle_class = np.full(len(detections), NO_CLASS, dtype=np.int64)
-        vehicle_class[reported] = np.searchsorted(
-            names, detections.vehicle_class[reported].astype(str)
+        names, coded, counts = np.unique(
+            detections.vehicle_class[reported].astype(str), return_inverse=True, return_counts=True
         )
+        vehicle_class = np.full(len(detections), NO_CLASS, dtype=np.int64)
+        vehicle_class[reported] = coded
+        if names.size > MAX_CLASSES:
+            # A class vocabulary is a handful of words; thousands (a free-text field) would make
+            # the confusion matrix their square. The commonest are kept, the rest unreported.
+            kept = np.sort(np.argsort(-counts, kind="stable")[:MAX_CLASSES])
+            code = np.full(names.size, NO_CLASS, dtype=np.int64)
+            code[kept] = np.arange(kept.size)
+            vehicle_class[reported] = code[coded]
+            names = names[kept]
         return cls(
             np.log(detections.length),
             detections.lane.astype(np.int64),
