@@ -136,7 +136,7 @@ def link_and_learn(
     if leader is None:
         leader = duplicate_followers(s, params)
     track = first = np.zeros(0, dtype=np.int64)
-    anchor, chains, ends = None, None, None
+    anchor, chains, ends = None, None, model.ends
     # Without lengths a chain drawn again would be the same.
     redraw = s.features is not None and s.features.has_length()
     learned_from = None  # the tracks the current model was learned from, with these anchors
@@ -164,9 +164,10 @@ def link_and_learn(
             if sweep is not None:
                 sweep.forget()  # this round's model, which the next round's replaces
             model = learn_segments(s, track, params, prior, anchor)
-            if r == 0:
-                # From the first tracks only: tracks built with these costs break more where
-                # they apply, and learning from them again would find more ends there each round.
+            if r == 0 and ends is None:
+                # From the first tracks only, built without them: tracks built with these costs
+                # break more where they apply, and learning from them again would find more ends
+                # there each round (live association's steps bring them in their model).
                 ends = learn_ends(s, track, model)
             model.ends = ends
             learned_from = track
