@@ -3,13 +3,16 @@
 import numpy as np
 import pytest
 
+from roadlink.association import associate
 from roadlink.association.associators.assignment import AssignmentParams
 from roadlink.association.associators.assignment.sensors import (
     KINEMATIC_SKEW,
     arrange,
+    one_speed_warnings,
     travel_time,
 )
 from roadlink.association.detections import Detections
+from roadlink.simulation import preset, simulate
 
 
 def test_the_kinematic_travel_time_weighs_both_ends_speeds_alike():
@@ -103,3 +106,27 @@ def test_arrival_keys_sort_as_sensor_then_time_and_none_with_a_nan_time():
     s = arrange(d, AssignmentParams())
     s.sorted_time[0] = np.nan
     assert s.arrival_keys is None
+
+
+def test_a_sensor_that_reports_one_speed_for_every_vehicle_is_named(caplog):
+    """A loop that counts and fills in a default speed tells vehicles nothing apart by it."""
+    d = simulate(preset("congested"), seed=0).detections
+    third = d.position == np.unique(d.position)[2]
+    stuck = Detections.from_columns(
+        d.position, np.where(third, 25.0, d.velocity), d.timestamp, target=list(d.target)
+    )
+    s = arrange(stuck, AssignmentParams())
+    assert one_speed_warnings(s) == [
+        f"the sensor at position {np.unique(d.position)[2]:g} reports one speed (25) for every "
+        "vehicle: its speeds tell vehicles nothing apart (a loop that counts and fills in a "
+        "default, or a stuck reading?)"
+    ]
+    assert associate(stuck, "assignment").warnings == tuple(one_speed_warnings(s))
+    assert "reports one speed" in caplog.text
+    # Every reading under the floor is a standing queue, not one reading; and a sensor with
+    # speeds to tell is not named.
+    crawl = Detections.from_columns(
+        d.position, np.where(third, 0.01, d.velocity), d.timestamp, target=list(d.target)
+    )
+    assert one_speed_warnings(arrange(crawl, AssignmentParams())) == []
+    assert one_speed_warnings(arrange(d, AssignmentParams())) == []

@@ -35,7 +35,11 @@ from roadlink.association.associators.assignment.params import (
 )
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import refine_boundaries
-from roadlink.association.associators.assignment.sensors import Sensors, arrange
+from roadlink.association.associators.assignment.sensors import (
+    Sensors,
+    arrange,
+    one_speed_warnings,
+)
 from roadlink.association.associators.assignment.tracks import (
     LevelRelay,
     SweepSetup,
@@ -78,6 +82,7 @@ class AssignmentAssociator(Associator):
         self.warnings = (
             *clock_warnings(s.positions, s.clock_offsets),
             *speed_factor_warnings(s.positions, prior.log_bias[:-1, 1], s.median_speed),
+            *one_speed_warnings(s),
         )
         for warning in self.warnings:
             LOG.warning("%s", warning)

@@ -166,3 +166,26 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         offsets,
         floor,
     )
+
+
+# A sensor with at least this many detections that all report one speed is named.
+ONE_SPEED_DETECTIONS = 20
+
+
+def one_speed_warnings(s: Sensors) -> list[str]:
+    """A sentence for each sensor that reports one speed for every vehicle (a loop that counts
+    vehicles and fills in a default speed, a stuck reading): its speeds tell the vehicles
+    nothing apart, and whoever keeps it should know. The association learns that from the
+    tracks as it learns any sensor's speed spread."""
+    counts = np.diff(s.start)
+    warnings = []
+    for k in np.flatnonzero(counts >= ONE_SPEED_DETECTIONS).tolist():
+        speeds = s.speed[s.order[s.start[k] : s.start[k + 1]]]
+        # (All floored is a standing queue read below the floor, not one reading.)
+        if speeds.min() == speeds.max() > s.speed_floor:
+            warnings.append(
+                f"the sensor at position {s.positions[k]:g} reports one speed ({speeds[0]:g}) "
+                "for every vehicle: its speeds tell vehicles nothing apart (a loop that counts "
+                "and fills in a default, or a stuck reading?)"
+            )
+    return warnings
