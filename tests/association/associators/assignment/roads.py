@@ -51,3 +51,14 @@ def steady_vehicles(
         timestamp=np.concatenate([start + (x - at[0]) / speed for x in at]),
         target=[f"V{i}" for _ in at for i in range(start.size)],
     )
+
+
+def sensor_cut(d: Detections, sensor: int, keep: int, *, first: bool = True) -> Detections:
+    """The detections with the `sensor`-th sensor (in road order) keeping only its first (or,
+    not `first`, its last) `keep` reports: a detector that stopped reporting early in the batch,
+    or started late."""
+    positions = np.unique(d.position)
+    at = np.flatnonzero(d.position == positions[sensor])
+    by_time = at[np.argsort(d.timestamp[at], kind="stable")]
+    dropped = by_time[keep:] if first else by_time[:-keep]
+    return d.take(np.setdiff1d(np.arange(len(d)), dropped))

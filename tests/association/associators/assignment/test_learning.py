@@ -14,6 +14,7 @@ from roadlink.association.associators.assignment.learning import (
 )
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.sensors import arrange
+from tests.association.associators.assignment.roads import sensor_cut
 
 
 def braking(seed: int, n_vehicles: int = 150) -> Detections:
@@ -112,3 +113,21 @@ def test_segments_learned_span_by_span_are_those_learned_all_at_once(monkeypatch
     for name in ("skew", "log_bias", "log_speed_ratio", "time_spread", "speed_spread"):
         np.testing.assert_array_equal(getattr(by_span, name), getattr(at_once, name), err_msg=name)
     assert (by_span.time_tails, by_span.speed_tails) == (at_once.time_tails, at_once.speed_tails)
+
+
+def test_the_segments_of_a_sparse_sensor_keep_the_prior():
+    # The sensor at 500 m keeps its first 15 reports of 150: its segments' links are those few,
+    # all near the window's opening, where the matching pairs a vehicle with a neighbour's
+    # partner (learned, a dying sensor's segment took a travel time 17-20 % short). They keep
+    # the prior's travel time; the segment before them learns its own.
+    d = sensor_cut(braking(2), 2, 15)
+    params = AssignmentParams()
+    s = arrange(d, params)
+    assert s.sparse.tolist() == [False, False, True, False]
+    _, truth = np.unique(d.target, return_inverse=True)
+    prior = segment_prior(s, params.max_skip + 1, params)
+    model = learn_segments(s, truth, params, prior)
+    np.testing.assert_array_equal(model.log_bias[1:3, 1], prior.log_bias[1:3, 1])
+    assert model.log_bias[0, 1] != prior.log_bias[0, 1]
+    # The links over it, 135 of them, teach their span as any.
+    assert model.log_bias[1, 2] != prior.log_bias[1, 2]

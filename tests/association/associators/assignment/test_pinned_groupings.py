@@ -42,6 +42,10 @@ the cases with copies: faulty traffic and the congested preset with faults.
 The batch's window taken as every sensor's (`edges.py`, session 23: a sensor that fell quiet
 part-way had ended its upstream neighbour's window) moved the cases with queues, whose window
 edges cost most, and the faulty ones.
+A sparse sensor (`Sensors.sparse`, session 24: one that stopped reporting early in a busy batch,
+or started late) tested like a busy one in the prior, its typical speed its neighbours', its
+segments keeping the prior's travel time, moved the queue without features, whose sensor at
+700 m saw 22 vehicles in the queue against its neighbours' 53 and 82 (33.8 -> 35.3 %).
 When a change of the METHOD moves a grouping on purpose, print the new digests with
 `python -m tests.association.associators.assignment.test_pinned_groupings` and say why in the
 commit.
@@ -66,7 +70,7 @@ PINNED: dict[tuple[str, tuple[tuple[str, float], ...]], str] = {
     ("sumo/sumo-faulty", ()): "df39f89e94978804",
     ("sumo/sumo-freeflow", ()): "4410844f39819332",
     ("sumo/sumo-irregular", ()): "fdf5a26e3eca1905",
-    ("sumo/sumo-queue", ()): "8978c3ffe64a1556",
+    ("sumo/sumo-queue", ()): "3a965ebb7ca7d51c",
     ("sumo/sumo-stopgo", ()): "48b3bd2e1f9d1800",
     ("sumo-features/sumo-bottleneck", ()): "615934d92871137c",
     ("sumo-features/sumo-dense-speed6", ()): "6116fe445fa86301",

@@ -4,6 +4,8 @@ do not, and sums of the segments' travel times over missed sensors."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -19,8 +21,10 @@ from roadlink.association.associators.assignment.prior import (
     travel_time_bumps,
 )
 from roadlink.association.associators.assignment.sensors import KINEMATIC_SKEW, arrange
+from roadlink.association.csvio import read_detections_csv
 from roadlink.association.detections import Detections
 from roadlink.simulation import preset, simulate
+from tests.association.associators.assignment.roads import sensor_cut
 
 PARAMS = AssignmentParams()
 SLOW = 1.5  # the slow zone's travel time over the kinematic one
@@ -176,3 +180,32 @@ def test_a_sensor_that_saw_a_vehicle_or_two_keeps_the_kinematic_prediction():
     params = AssignmentParams()
     prior = segment_prior(arrange(d.take(keep), params), params.max_skip + 1, params)
     assert prior.log_bias[1, 1] == prior.log_bias[2, 1] == 0.0
+
+
+DENSE = Path(__file__).parents[3] / "data" / "sumo" / "sumo-dense.csv"
+
+
+@pytest.mark.parametrize("keep", [10, 25])
+def test_a_sensor_quiet_early_in_a_busy_batch_leaves_the_kinematic_prediction(keep):
+    # SUMO's dense traffic (about 150 vehicles a sensor); the sixth sensor keeps its first
+    # `keep` reports. Its few detections against its busy neighbour's arrivals once put its
+    # segment at 6 times the kinematic travel time (keeping 25), and the links over it, whose
+    # travel times add up through its median speed (that of its first vehicles), 6 % short
+    # (keeping 10): every segment and every span over it is kinematic to a few per cent.
+    s = arrange(sensor_cut(read_detections_csv(DENSE), 5, keep).without_labels(), PARAMS)
+    assert s.sparse.nonzero()[0].tolist() == [5]
+    model = segment_prior(s, 3, PARAMS)
+    np.testing.assert_array_equal(model.log_bias[:-1, 1], 0.0)
+    assert np.abs(model.log_bias[:-2, 2]).max() < 0.02
+
+
+@pytest.mark.parametrize(("name", "n_targets", "seed"), [("large", 10, 2), ("medium", 40, 7)])
+def test_a_handful_of_targets_keeps_the_kinematic_prediction_its_own_bin_holds(
+    name, n_targets, seed
+):
+    # The paper's traffic with the third sensor quiet after half of its vehicles: the pairs of
+    # vehicles that started together bunch at 4.6-5.6 times the kinematic travel time above the
+    # handful of true pairs, which still stand out in the kinematic bin.
+    d = simulate(preset(name, n_targets=n_targets), seed=seed).detections
+    model = segment_prior(arrange(sensor_cut(d, 2, n_targets // 2), PARAMS), 3, PARAMS)
+    np.testing.assert_array_equal(model.log_bias[:-1, 1], 0.0)

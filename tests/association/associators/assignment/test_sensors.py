@@ -13,6 +13,7 @@ from roadlink.association.associators.assignment.sensors import (
 )
 from roadlink.association.detections import Detections
 from roadlink.simulation import preset, simulate
+from tests.association.associators.assignment.roads import sensor_cut
 
 
 def test_the_kinematic_travel_time_weighs_both_ends_speeds_alike():
@@ -130,3 +131,35 @@ def test_a_sensor_that_reports_one_speed_for_every_vehicle_is_named(caplog):
     )
     assert one_speed_warnings(arrange(crawl, AssignmentParams())) == []
     assert one_speed_warnings(arrange(d, AssignmentParams())) == []
+
+
+def counts_road(counts: list[int]) -> Detections:
+    """Sensors 200 m apart, each with its count of detections one second apart at 20 m/s."""
+    position = np.repeat(200.0 * np.arange(len(counts)), counts)
+    time = np.concatenate([np.arange(n, dtype=np.float64) for n in counts])
+    return Detections.from_columns(position, np.full(position.size, 20.0), time)
+
+
+@pytest.mark.parametrize(
+    ("counts", "sparse"),
+    [
+        ([60, 25, 60, 60], [False, True, False, False]),  # quiet after 25 of a busy batch
+        ([60, 60, 60, 10], [False, False, False, True]),  # the last sensor, started late
+        ([41, 38, 41, 40], [False, False, False, False]),  # a few misses more than its neighbour
+        ([30, 10, 30, 30], [False, False, False, False]),  # a paper-size batch: few everywhere
+    ],
+)
+def test_a_sensor_far_quieter_than_a_busy_neighbour_is_sparse(counts, sparse):
+    s = arrange(counts_road(counts), AssignmentParams())
+    assert s.sparse.tolist() == sparse
+
+
+def test_a_sparse_sensors_typical_speed_is_its_neighbours():
+    # Congested traffic at 20-40 m/s; the sensor at 300 m keeps its first 15 reports, those of
+    # the fastest vehicles, which reach it first.
+    d = simulate(preset("congested", slow_zone=None), seed=0).detections
+    s = arrange(sensor_cut(d, 3, 15), AssignmentParams())
+    assert s.sparse.tolist() == [k == 3 for k in range(s.positions.size)]
+    assert s.median_speed[3] > 1.1 * max(s.median_speed[2], s.median_speed[4])
+    assert s.typical_speed[3] == pytest.approx(0.5 * (s.median_speed[2] + s.median_speed[4]))
+    np.testing.assert_array_equal(np.delete(s.typical_speed, 3), np.delete(s.median_speed, 3))

@@ -42,8 +42,15 @@ PRIOR_SIGNIFICANCE = 5.0
 PRIOR_WEAK_SIGNIFICANCE = 2.0
 PRIOR_WEAK_SUPPORT = 1.0
 # Fewer sampled detections than this cannot reach that significance (a handful of targets): their
-# mode is taken as it is, as long as it stands above the background at all.
+# mode is taken as it is, as long as it stands above the background at all, unless the kinematic
+# prediction's own bin holds a bump of at least PRIOR_KINEMATIC_BUMP standard deviations that the
+# mode does not beat by PRIOR_KINEMATIC_LEAD (`prior.BiasHistogram.kinematic_stands`).
 PRIOR_TEST_SAMPLE = 40
+PRIOR_KINEMATIC_BUMP = 1.5
+PRIOR_KINEMATIC_LEAD = 2.0
+# A sensor with fewer than PRIOR_TEST_SAMPLE detections and under this share of a busy
+# neighbour's stopped reporting early in the batch, or started late (`Sensors.sparse`).
+SPARSE_SHARE = 0.5
 # A segment either of whose sensors saw fewer detections than this has no mode: the kinematic
 # prediction stands.
 PRIOR_MIN_DETECTIONS = 3

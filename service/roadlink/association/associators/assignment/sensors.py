@@ -9,11 +9,16 @@ import numpy as np
 import numpy.typing as npt
 
 from roadlink.association.associators.assignment.features import SensorFeatures
-from roadlink.association.associators.assignment.params import AssignmentParams
+from roadlink.association.associators.assignment.params import (
+    PRIOR_TEST_SAMPLE,
+    SPARSE_SHARE,
+    AssignmentParams,
+)
 from roadlink.association.associators.assignment.robust import median
 from roadlink.association.detections import Detections, FloatArray, IntArray
 
 ComplexArray = npt.NDArray[np.complex128]
+BoolArray = npt.NDArray[np.bool_]
 
 # The share of a travel time predicted from the far end's speed, before a segment learns its own:
 # both ends' speeds weigh alike.
@@ -70,6 +75,38 @@ class Sensors:
     def first_time(self) -> FloatArray:
         """Each sensor's first detection time: where the batch's window opens for it."""
         return self.sorted_time[self.start[:-1]]
+
+    @cached_property
+    def sparse(self) -> BoolArray:
+        """The sensors that saw fewer than PRIOR_TEST_SAMPLE detections and under SPARSE_SHARE
+        of what a neighbour saw, that neighbour at least PRIOR_TEST_SAMPLE: in a busy batch, a
+        sensor that stopped reporting early (or started late). Its few detections tell the
+        traffic of a minute, not of the batch, and its segments' links are few and all near the
+        window's edge."""
+        seen = np.diff(self.start)
+        neighbour = np.maximum(np.r_[0, seen[:-1]], np.r_[seen[1:], 0])
+        result: BoolArray = (
+            (seen < PRIOR_TEST_SAMPLE)
+            & (seen < SPARSE_SHARE * neighbour)
+            & (neighbour >= PRIOR_TEST_SAMPLE)
+        )
+        return result
+
+    @cached_property
+    def typical_speed(self) -> FloatArray:
+        """Each sensor's typical speed, for the prior's kinematic travel times: its median, but a
+        sparse sensor's is its neighbours', interpolated by position. Its few detections tell the
+        speeds of a minute, not of the batch, and a link over it is priced by the travel times
+        that add up through it: with its median from its first ten vehicles (12 % fast, SUMO's
+        dense traffic) the links over it expected a travel time 6 % short, eight spreads of a
+        segment's, and 95 % of them were wrong."""
+        sparse = self.sparse
+        if not sparse.any():
+            return self.median_speed
+        typical = self.median_speed.copy()
+        busy = ~sparse
+        typical[sparse] = np.interp(self.positions[sparse], self.positions[busy], typical[busy])
+        return typical
 
     @cached_property
     def slowest_speed(self) -> FloatArray:
