@@ -75,6 +75,19 @@ def test_without_a_model_a_window_is_grouped_as_the_offline_associator_groups_it
     assert learned is not None and learned.clock == 150.0
 
 
+def test_a_window_sent_twice_is_grouped_as_sent_once() -> None:
+    # A gateway that sends its reports again: each report is grouped once and its repeat
+    # joins it, as offline.
+    d = _window(_traffic(), 0.0, 150.0).without_labels()
+    twice = d.take(np.r_[np.arange(len(d)), np.arange(len(d))])
+    params = AssignmentParams()
+    groups, confidence, _ = associate_window(d, params, 150.0, None)
+    both, both_confidence, learned = associate_window(twice, params, 150.0, None)
+    np.testing.assert_array_equal(both, np.r_[groups, groups])
+    np.testing.assert_array_equal(both_confidence[: len(d)], confidence)
+    assert np.isnan(both_confidence[len(d) :]).all() and learned is not None
+
+
 @pytest.mark.parametrize("features", [False, True])
 def test_with_the_last_steps_model_a_window_is_linked_once(
     features: bool, monkeypatch: pytest.MonkeyPatch

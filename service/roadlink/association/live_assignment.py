@@ -38,6 +38,8 @@ from roadlink.association.associators.assignment.confirmation import confirm_tar
 from roadlink.association.associators.assignment.duplicates import (
     duplicate_followers,
     join_duplicates,
+    once_each,
+    repeat_of,
 )
 from roadlink.association.associators.assignment.params import within_time_scale
 from roadlink.association.associators.assignment.prior import segment_prior
@@ -95,6 +97,14 @@ def associate_window(
     answers them, and the model for the next step (None: none worth keeping). `d` must hold
     two sensor positions or more and no labels (the associator never sees them)."""
     s = arrange(d, params)
+    repeats = repeat_of(s, d)
+    if repeats is not None:
+        # Each report once, as offline (`AssignmentAssociator.group`).
+        once, at = once_each(repeats)
+        groups, judged, learned = associate_window(d.take(once), params, clock, learned)
+        every = np.full(repeats.size, np.nan)
+        every[once] = judged
+        return groups[at], every, learned
     effective = within_time_scale(params, s.typical_travel_time())
     key = _key(params, s, d)
     if learned is not None and learned.key == key and clock - learned.clock < RELEARN_SECONDS:

@@ -87,3 +87,25 @@ def test_on_a_motorway_with_junctions_vehicles_that_leave_and_join_are_not_linke
     assert result.metrics is not None and before.metrics is not None
     assert result.metrics.accuracy >= 0.90
     assert result.metrics.accuracy >= before.metrics.accuracy + 0.02
+
+
+def test_a_passages_second_report_is_no_vehicle_leaving_or_joining():
+    # A second detector at 500 m reports every vehicle again 0.05 s later: the copies, left
+    # out of the tracks (each joins its twin's target at the end), read as tracks of their own
+    # that end and start there, every vehicle leaving and joining (SUMO's free flow: 99.2 ->
+    # 88.8 %). Counted as what they are, they say nothing.
+    d, vehicle = _traffic()
+    again = np.flatnonzero(d.position == 500.0)
+    both = Detections.from_columns(
+        np.r_[d.position, d.position[again]],
+        np.r_[d.velocity, d.velocity[again]],
+        np.r_[d.timestamp, d.timestamp[again] + 0.05],
+    )
+    track = np.r_[vehicle, np.full(again.size, -1)]
+    copies = np.r_[np.zeros(len(d), dtype=bool), np.ones(again.size, dtype=bool)]
+    s = arrange(both, PARAMS)
+    zeros = np.zeros(len(both))
+    read_as_tracks = learn_road_ends(s, track, zeros, zeros)
+    assert read_as_tracks is not None
+    assert read_as_tracks.leaving[2] > 0 and read_as_tracks.arriving[2] > 0
+    assert learn_road_ends(s, track, zeros, zeros, copies) is None

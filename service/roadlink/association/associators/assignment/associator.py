@@ -26,6 +26,8 @@ from roadlink.association.associators.assignment.confirmation import (
 from roadlink.association.associators.assignment.duplicates import (
     duplicate_followers,
     join_duplicates,
+    once_each,
+    repeat_of,
 )
 from roadlink.association.associators.assignment.learning import learn_ends, learn_segments
 from roadlink.association.associators.assignment.model import SegmentModel
@@ -74,6 +76,9 @@ class AssignmentAssociator(Associator):
         from the prior, link and learn for `em_rounds` rounds and once more, re-pair for
         `refine_sweeps` sweeps, and keep the tracks that are targets."""
         s = arrange(detections, self.params)
+        repeats = repeat_of(s, detections)
+        if repeats is not None:
+            return self._group_once(detections, repeats, progress)
         params = within_time_scale(self.params, s.typical_travel_time())
         self.effective_params = params
         prior = segment_prior(s, params.max_skip + 1, params)
@@ -104,6 +109,18 @@ class AssignmentAssociator(Associator):
             LOG.warning("%s", warning)
             self.warnings += (warning,)
         return join_duplicates(target, leader)
+
+    def _group_once(
+        self, detections: Detections, repeats: IntArray, progress: Progress | None
+    ) -> IntArray:
+        """The groups of the detections each report once (`duplicates.repeat_of`), a repeat in
+        its report's group, carrying no link confidence (nothing links to it)."""
+        kept, at = once_each(repeats)
+        groups = self.group(detections.take(kept), progress)
+        confidence = np.full(repeats.size, np.nan)
+        confidence[kept] = self.link_confidence
+        self.link_confidence = confidence
+        return groups[at]
 
 
 @dataclass(frozen=True)
@@ -173,7 +190,7 @@ def link_and_learn(
                 # From the first tracks only, built without them: tracks built with these costs
                 # break more where they apply, and learning from them again would find more ends
                 # there each round (live association's steps bring them in their model).
-                ends = learn_ends(s, track, model)
+                ends = learn_ends(s, track, model, leader)
             model.ends = ends
             learned_from = track
             if anchor is None and params.lane_anchors and params.feature_weight > 0:

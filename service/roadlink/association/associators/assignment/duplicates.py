@@ -5,18 +5,19 @@ the same speed. Both reports are the vehicle's, but a track holds one detection 
 while tracks are built a copy never starts a track of its own (`tracks._births`), and once they
 are built, a copy left out of every target joins its twin's (`join_duplicates`): it is one of
 that vehicle's detections, and a user (and the scoring) finds it there rather than unassigned.
+A report that repeats another exactly (`repeat_of`: a batch sent again) is set aside before
+anything is linked, and takes its report's group at the end.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 
 from roadlink.association.associators.assignment.features import NO_CLASS, SensorFeatures
 from roadlink.association.associators.assignment.gating import GATE_AT_ONCE
 from roadlink.association.associators.assignment.params import AssignmentParams
 from roadlink.association.associators.assignment.sensors import Sensors
-from roadlink.association.detections import NO_LANE, IntArray
+from roadlink.association.detections import NO_LANE, Detections, IntArray
 
 
 def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
@@ -58,21 +59,52 @@ def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
     return leader
 
 
-def repeated_reports(s: Sensors, leader: IntArray) -> npt.NDArray[np.bool_]:
-    """Whether each report repeats its leader exactly (the same time and speed, the same lane,
-    length and class where reported): a gateway that sent a batch, or a row, again. Two
-    vehicles side by side differ in something; such a report is never a vehicle of its own."""
-    copy = np.flatnonzero(leader >= 0)
-    first = leader[copy]
-    same = (s.time[copy] == s.time[first]) & (s.speed[copy] == s.speed[first])
-    f = s.features
-    if f is not None:
-        same &= (f.lane[copy] == f.lane[first]) & (f.vehicle_class[copy] == f.vehicle_class[first])
-        length, other = f.log_length[copy], f.log_length[first]
-        same &= (length == other) | (np.isnan(length) & np.isnan(other))
-    repeated = np.zeros(leader.size, dtype=bool)
-    repeated[copy[same]] = True
-    return repeated
+def repeat_of(s: Sensors, d: Detections) -> IntArray | None:
+    """For every report of `d` (arranged as `s`), the first in input order of the reports it
+    repeats exactly: the same sensor, time and speed, and the same lane, length and class where
+    reported (a gateway that sent a batch, or some rows, again; two feeds of one detector).
+    Itself where it repeats none; None where no report repeats another. Such a report is never
+    a vehicle of its own, nor any other vehicle's: the associator groups each report once and
+    gives its repeats its group (`AssignmentAssociator.group`). Left among the others, a
+    repeat was linked into a neighbour's track in dense traffic and took its place (SUMO's
+    dense traffic sent twice: 69.3 %, against 95.4 % once).
+
+    Reports of one sensor, time and speed sort next to each other in `s.order` (ties in input
+    order), so one comparison of neighbours finds them; where features are reported, those
+    runs are sorted again by lane, length and class."""
+    o = s.order
+    a, b = o[:-1], o[1:]
+    same = (s.sensor[a] == s.sensor[b]) & (s.time[a] == s.time[b])
+    same &= d.velocity[a] == d.velocity[b]
+    if not same.any():
+        return None
+    run_start = np.r_[True, ~same]
+    run = (np.cumsum(run_start) - 1)[np.argsort(o)]  # each report's run, by report
+    if d.features:
+        run = _split_by_features(d, run, o[np.r_[same, False] | np.r_[False, same]])
+    first = np.full(run.max() + 1, o.size, dtype=np.int64)
+    np.minimum.at(first, run, np.arange(o.size))
+    result: IntArray = first[run]
+    return None if (result == np.arange(o.size)).all() else result
+
+
+def _split_by_features(d: Detections, run: IntArray, shared: IntArray) -> IntArray:
+    """`run` (each report's run of one sensor, time and speed) split where the reports of a run
+    (`shared`: those in a run of two or more) differ in lane, length or class."""
+    length = np.where(np.isnan(d.length[shared]), -1.0, d.length[shared])
+    _, kind = np.unique(d.vehicle_class[shared].astype(str), return_inverse=True)
+    key = np.stack([run[shared], d.lane[shared], length, kind]).T
+    _, split = np.unique(key, axis=0, return_inverse=True)
+    result = run.copy()
+    result[shared] = run.max() + 1 + split.ravel()
+    return result
+
+
+def once_each(repeats: IntArray) -> tuple[IntArray, IntArray]:
+    """The reports kept once (those that repeat none, ascending) and, for every report, the
+    place among them of the report it is (`repeat_of`)."""
+    kept = np.flatnonzero(repeats == np.arange(repeats.size))
+    return kept, np.searchsorted(kept, repeats)
 
 
 def _lead_from_roots(s: Sensors, leader: IntArray, window: float, tolerance: float) -> None:

@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from roadlink.association.associators.assignment.anchors import Anchors
+from roadlink.association.associators.assignment.duplicates import join_duplicates
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.ends import RoadEnds, learn_road_ends
 from roadlink.association.associators.assignment.features import learn_features
@@ -116,11 +117,15 @@ def keep_sparse_segments(s: Sensors, model: SegmentModel, prior: SegmentModel) -
         model.log_bias[:-1, 1][touching] = prior.log_bias[:-1, 1][touching]
 
 
-def learn_ends(s: Sensors, track: IntArray, model: SegmentModel) -> RoadEnds | None:
+def learn_ends(
+    s: Sensors, track: IntArray, model: SegmentModel, leader: IntArray
+) -> RoadEnds | None:
     """Where vehicles leave or join the road (`ends.learn_road_ends`), from the `track`s, each
-    detection near the batch's window read with `model`'s travel times."""
+    detection near the batch's window read with `model`'s travel times, the copies that join
+    their twins' targets (`leader`: `duplicates.duplicate_followers`) not counted."""
     window = WindowEdges.of(s, replace(model, ends=None), 1.0)
-    return learn_road_ends(s, track, window.leaving, window.arriving)
+    copies = (track < 0) & (join_duplicates(track, leader) >= 0)
+    return learn_road_ends(s, track, window.leaving, window.arriving, copies)
 
 
 def confident_detections(track: IntArray, anchor: Anchors | None = None) -> IntArray:

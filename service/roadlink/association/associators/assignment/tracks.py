@@ -16,7 +16,6 @@ from roadlink.association.associators.assignment.costs import (
     affordable_links,
     link_cost,
 )
-from roadlink.association.associators.assignment.duplicates import repeated_reports
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import (
     EverySensor,
@@ -168,7 +167,6 @@ def build_tracks(
         edges, wide_edges = WindowEdges.each(s, model, (params.gate_cost / 2.0, wide.gate / 2.0))
         sweep.model, sweep.gate, sweep.edges = model, wide, wide_edges
     copies = leader if (leader >= 0).any() else None
-    repeated = None if copies is None else repeated_reports(s, leader)
     foreseen = None
     if expected is not None and gate.every is not None:
         foreseen = Foreseen.of(s, model, params, gate.every, edges, anchor, expected, relay)
@@ -207,8 +205,6 @@ def build_tracks(
         # not a copy of that vehicle's report.
         joins = model.ends is not None and model.ends.arriving[q] > 0
         born = _births(s.members(q), linked_b, track, None if joins else copies)
-        if repeated is not None:
-            born = born[~repeated[born]]  # a report sent again is never a vehicle of its own
         track[born] = tail.size + np.arange(born.size)
         tail = np.concatenate([tail, born])
         if foreseen is not None and not same(track[s.members(q)], foreseen.expected[s.members(q)]):
