@@ -35,6 +35,10 @@ directory of their own: their names are the scenarios'.
 sensor's clock by a normal draw of 1 s (std; drawn from the seed, the same for every
 associator); any number of seconds may follow the word. Field sensors that no GPS or NTP keeps
 in step drift by seconds.
+
+`--quiet` has the middle sensor stop reporting early (`firstN`: it keeps its first N reports)
+or start late (`lastN`: its last N), as a detector that fails, loses power or comes back
+online part-way through a batch does (`with_quiet`).
 """
 
 from __future__ import annotations
@@ -143,6 +147,32 @@ def clock_option(value: str) -> str:
     return value
 
 
+QUIET = re.compile(r"(first|last)(\d+)")
+
+
+def with_quiet(detections: Detections, quiet: str | None) -> Detections:
+    """The case as a middle sensor that stopped reporting early (`firstN`: its first N reports
+    kept) or started late (`lastN`) would report it (`--quiet`); None leaves it as it is."""
+    if quiet is None:
+        return detections
+    match = QUIET.fullmatch(quiet)
+    if match is None:
+        raise ValueError(f"--quiet: expected firstN or lastN (N reports), got {quiet!r}")
+    kind, keep = match.group(1), int(match.group(2))
+    positions = np.unique(detections.position)
+    at = np.flatnonzero(detections.position == positions[positions.size // 2])
+    by_time = at[np.argsort(detections.timestamp[at], kind="stable")]
+    dropped = by_time[keep:] if kind == "first" else by_time[: max(by_time.size - keep, 0)]
+    return detections.take(np.setdiff1d(np.arange(len(detections)), dropped))
+
+
+def quiet_option(value: str) -> str:
+    """`--quiet`'s value, checked before any case is simulated."""
+    if QUIET.fullmatch(value) is None:
+        raise argparse.ArgumentTypeError(f"expected firstN or lastN (N reports): {value}")
+    return value
+
+
 # The column title's suffix for the features a case reports (`--features`, `--lanes-alone`).
 FEATURE_SUFFIX = {"all": "", "none": " -f", "lane": " -l"}
 
@@ -246,6 +276,12 @@ def main() -> None:
         help="Sensors' clocks off: lateS, earlyS (the middle sensor, S seconds) or spreadS "
         "(every sensor, S seconds std).",
     )
+    parser.add_argument(
+        "--quiet",
+        type=quiet_option,
+        help="The middle sensor stops reporting early (firstN: keeps its first N reports) or "
+        "starts late (lastN).",
+    )
     parser.add_argument("--length-noise", type=float, default=LENGTH_NOISE)
     parser.add_argument("--data", type=Path, help="Read the cases' CSVs from here (no SUMO).")
     parser.add_argument("--export", type=Path, help="Also write the simulated cases' CSVs here.")
@@ -289,7 +325,7 @@ def main() -> None:
         seconds: dict[str, list[float]] = {t: [] for t in titles}
         for seed in range(args.seeds):
             detections = load_case(scenario, seed, args.data, args.export, noise)
-            detections = with_clock(detections, args.clock, seed)
+            detections = with_quiet(with_clock(detections, args.clock, seed), args.quiet)
             sizes.setdefault(scenario, []).append(describe(detections))
             for (name, features), title in zip(columns, titles, strict=True):
                 case = with_reported(detections, features)
@@ -325,6 +361,7 @@ def main() -> None:
                 "seeds": args.seeds,
                 "length_noise": noise,
                 "clock": args.clock,
+                "quiet": args.quiet,
                 "timeout_seconds": args.timeout,
                 "scenarios": {
                     name: {"description": EVERY_SCENARIO[name].description, "cases": sizes[name]}

@@ -82,3 +82,21 @@ def test_a_late_or_early_clock_shifts_the_middle_sensor_alone_and_a_spread_every
     assert bench.with_clock(d, None, seed=0) is d
     with pytest.raises(ValueError, match="lateS"):
         bench.with_clock(d, "slow2", seed=0)
+
+
+def test_a_quiet_middle_sensor_keeps_its_first_or_last_reports_alone():
+    # Five sensors with four reports each; the middle one's come at 3, 2, 1, 0 s (unordered).
+    d = Detections.from_columns(
+        np.repeat([0.0, 100.0, 200.0, 300.0, 400.0], 4),
+        np.full(20, 20.0),
+        np.r_[np.arange(8.0), [3.0, 2.0, 1.0, 0.0], np.arange(8.0)],
+    )
+    first = bench.with_quiet(d, "first1")
+    assert first.timestamp[first.position == 200].tolist() == [0.0]
+    assert (first.position != 200).sum() == 16
+    last = bench.with_quiet(d, "last3")
+    assert sorted(last.timestamp[last.position == 200].tolist()) == [1.0, 2.0, 3.0]
+    assert len(bench.with_quiet(d, "last9")) == 20
+    assert bench.with_quiet(d, None) is d
+    with pytest.raises(ValueError, match="firstN"):
+        bench.with_quiet(d, "early2")
