@@ -3,6 +3,8 @@ chained by loose links, are left out; a track the batch's time window cut short 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,13 +14,17 @@ from roadlink.association.associators.assignment.anchors import Anchors
 from roadlink.association.associators.assignment.confirmation import (
     confirm_targets,
     ends_explained,
+    noisy_sensor_warnings,
     starts_explained,
     track_evidence,
 )
 from roadlink.association.associators.assignment.sensors import arrange
+from roadlink.association.csvio import read_detections_csv
 from roadlink.association.detections import Detections, concatenate
 from roadlink.simulation import preset, simulate
 from tests.association.associators.assignment.roads import kinematic_model, steady_vehicles
+
+COMMITTED_SUMO = Path(__file__).parents[3] / "data" / "sumo"
 
 PARAMS = AssignmentParams()
 ROAD = [0.0, 100.0, 200.0, 300.0, 400.0]
@@ -142,3 +148,71 @@ def test_a_batch_whose_units_or_direction_fit_no_vehicle_says_so(case, caplog):
     assert any("could be linked to another: check that positions" in w for w in result.warnings)
     assert "matching units" in caplog.text
     assert not associate(d, "assignment").warnings
+
+
+def _with_false_alarms(d: Detections, position: float, share: float, seed: int) -> Detections:
+    """`d` with false alarms at the sensor at `position`: `share` of its count more reports at
+    uniform times and speeds within its own."""
+    rng = np.random.default_rng(seed)
+    at = d.position == position
+    n = int(share * at.sum())
+    v, t = d.velocity[at], d.timestamp
+    return concatenate(
+        [
+            d,
+            Detections.from_columns(
+                np.full(n, position),
+                rng.uniform(v.min(), v.max(), n),
+                rng.uniform(t.min(), t.max(), n),
+                target=["clutter"] * n,
+            ),
+        ]
+    )
+
+
+@pytest.mark.parametrize("case", ["sumo-dense", "sumo-freeflow", "sumo-faulty"])
+def test_a_sensor_reporting_half_again_its_vehicles_as_false_alarms_is_named(case, caplog):
+    d = read_detections_csv(COMMITTED_SUMO / f"{case}.csv")
+    noisy = _with_false_alarms(d, 1450.0, 0.5, seed=1)
+    warnings = associate(noisy, "assignment").warnings
+    assert len(warnings) == 1
+    assert warnings[0].startswith("the sensor at position 1450 reported 1.")
+    assert "joined no vehicle: false alarms" in caplog.text
+    assert not associate(d, "assignment").warnings
+
+
+@pytest.mark.parametrize("case", ["sumo-queue", "sumo-stopgo", "sumo-bottleneck"])
+def test_a_queue_that_stores_vehicles_between_sensors_names_no_sensor(case):
+    # The sensor before a queue sees more vehicles than the next, many never linked inside the
+    # batch: but not more than the sensor before it.
+    d = read_detections_csv(COMMITTED_SUMO / f"{case}.csv")
+    assert not noisy_sensor_warnings(arrange(d, AssignmentParams()), associate(d).groups)
+
+
+def test_a_sensor_is_named_only_above_both_neighbours_with_its_extra_reports_unlinked():
+    # Sensors 200 m apart with 100, 160, 100, 100 reports; the second's 60 extra unlinked.
+    counts = [100, 160, 100, 100]
+    d = Detections.from_columns(
+        np.repeat(200.0 * np.arange(4), counts),
+        np.full(sum(counts), 20.0),
+        np.concatenate([np.arange(n, dtype=np.float64) for n in counts]),
+    )
+    s = arrange(d, AssignmentParams())
+    target = np.zeros(len(d), dtype=np.int64)
+    second = np.flatnonzero(d.position == 200.0)
+    target[second[:60]] = -1
+    (warning,) = noisy_sensor_warnings(s, target)
+    assert warning.startswith("the sensor at position 200 reported 1.6 times")
+    assert "60 of them (38%) joined no vehicle" in warning
+    # Half of them unlinked: not false alarms by count. Its neighbour as busy: a queue's edge.
+    target[second[:60]] = 0
+    target[second[:20]] = -1
+    assert not noisy_sensor_warnings(s, target)
+    d_queue = Detections.from_columns(
+        np.repeat(200.0 * np.arange(4), [160, 160, 100, 100]),
+        np.full(520, 20.0),
+        np.concatenate([np.arange(n, dtype=np.float64) for n in [160, 160, 100, 100]]),
+    )
+    unlinked = np.zeros(520, dtype=np.int64)
+    unlinked[160:220] = -1
+    assert not noisy_sensor_warnings(arrange(d_queue, AssignmentParams()), unlinked)

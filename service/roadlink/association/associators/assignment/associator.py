@@ -22,6 +22,7 @@ from roadlink.association.associators.assignment.confidence import (
 from roadlink.association.associators.assignment.confirmation import (
     confirm_targets,
     few_links_warnings,
+    noisy_sensor_warnings,
 )
 from roadlink.association.associators.assignment.duplicates import (
     duplicate_followers,
@@ -105,10 +106,11 @@ class AssignmentAssociator(Associator):
         del sweep
         target = confirm_targets(s, model, params, track, anchor)
         target, self.link_confidence = cut_weak_links(s, target, confidence, params.min_confidence)
-        for warning in few_links_warnings(s, target):
+        target = join_duplicates(target, leader)
+        for warning in (*few_links_warnings(s, target), *noisy_sensor_warnings(s, target)):
             LOG.warning("%s", warning)
             self.warnings += (warning,)
-        return join_duplicates(target, leader)
+        return target
 
     def _group_once(
         self, detections: Detections, repeats: IntArray, progress: Progress | None
