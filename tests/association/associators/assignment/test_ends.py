@@ -11,7 +11,12 @@ import pytest
 
 from roadlink.association.associators.assignment import AssignmentParams
 from roadlink.association.associators.assignment import associator as assignment_associator
-from roadlink.association.associators.assignment.ends import RoadEnds, learn_road_ends
+from roadlink.association.associators.assignment.ends import (
+    SLOW_QUANTILE,
+    RoadEnds,
+    learn_road_ends,
+    slow_speeds,
+)
 from roadlink.association.associators.assignment.sensors import arrange
 from roadlink.association.csvio import read_detections_csv
 from roadlink.association.detections import Detections
@@ -109,3 +114,16 @@ def test_a_passages_second_report_is_no_vehicle_leaving_or_joining():
     assert read_as_tracks is not None
     assert read_as_tracks.leaving[2] > 0 and read_as_tracks.arriving[2] > 0
     assert learn_road_ends(s, track, zeros, zeros, copies) is None
+
+
+def test_each_sensors_slow_speed_is_numpys_quantile():
+    rng = np.random.default_rng(3)
+    counts = [1, 2, 7, 40, 333]
+    d = Detections.from_columns(
+        np.repeat(100.0 * np.arange(len(counts)), counts),
+        rng.uniform(1.0, 40.0, sum(counts)),
+        rng.uniform(0.0, 100.0, sum(counts)),
+    )
+    s = arrange(d, PARAMS)
+    expected = [np.quantile(s.speed[s.members(k)], SLOW_QUANTILE) for k in range(len(counts))]
+    np.testing.assert_allclose(slow_speeds(s), expected, rtol=1e-15)

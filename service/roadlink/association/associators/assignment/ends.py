@@ -122,14 +122,23 @@ def _flowing(s: Sensors) -> BoolArray:
     """Whether traffic flows at each sensor: its slowest tenth of speeds at least FLOWING of
     the road's fastest median. Where it does not, vehicles are stored between the sensors (a
     queue grows, a crawl outlasts the batch) and their counts need not match."""
-    slow = np.array(
-        [
-            np.quantile(s.speed[s.order[lo:hi]], SLOW_QUANTILE)
-            for lo, hi in zip(s.start[:-1], s.start[1:], strict=True)
-        ]
-    )
-    flowing: BoolArray = slow >= FLOWING * float(s.median_speed.max())
+    flowing: BoolArray = slow_speeds(s) >= FLOWING * float(s.median_speed.max())
     return flowing
+
+
+def slow_speeds(s: Sensors) -> FloatArray:
+    """Each sensor's SLOW_QUANTILE of speeds, as np.quantile (linear) finds it, every sensor's at
+    once from one sort by sensor and speed: sensor by sensor it was a tenth of a paper-size
+    batch's association."""
+    speeds = s.speed[s.order]
+    ranked = speeds[np.lexsort((speeds, s.sensor[s.order]))]
+    last = np.diff(s.start) - 1
+    at = SLOW_QUANTILE * last
+    below = np.floor(at).astype(np.int64)
+    low = ranked[s.start[:-1] + below]
+    high = ranked[s.start[:-1] + np.minimum(below + 1, last)]
+    result: FloatArray = low + (high - low) * (at - below)
+    return result
 
 
 def _track_ends(s: Sensors, track: IntArray) -> tuple[BoolArray, BoolArray]:
