@@ -103,6 +103,13 @@ def learn_road_ends(
     return result if result.any() else None
 
 
+def readable(s: Sensors) -> bool:
+    """Whether any sensor's share could stand out (`learn_road_ends` finds none otherwise): two
+    sensors or more, of three or more, with MIN_COUNTED detections. A paper-size batch has
+    none, and skips the window's costs that the reading needs."""
+    return s.positions.size >= 3 and int(np.count_nonzero(np.diff(s.start) >= MIN_COUNTED)) >= 2
+
+
 def _between_linked(s: Sensors, first: BoolArray, last: BoolArray) -> BoolArray:
     """Whether each detection comes after its sensor's first detection that has a predecessor
     (from the start at the first sensor) and before its last that has a successor (to the end

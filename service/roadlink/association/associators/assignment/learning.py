@@ -14,7 +14,7 @@ import numpy as np
 from roadlink.association.associators.assignment.anchors import Anchors
 from roadlink.association.associators.assignment.duplicates import join_duplicates
 from roadlink.association.associators.assignment.edges import WindowEdges
-from roadlink.association.associators.assignment.ends import RoadEnds, learn_road_ends
+from roadlink.association.associators.assignment.ends import RoadEnds, learn_road_ends, readable
 from roadlink.association.associators.assignment.features import learn_features
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel, Tails
@@ -134,6 +134,8 @@ def learn_ends(
     """Where vehicles leave or join the road (`ends.learn_road_ends`), from the `track`s, each
     detection near the batch's window read with `model`'s travel times, the copies that join
     their twins' targets (`leader`: `duplicates.duplicate_followers`) not counted."""
+    if not readable(s):
+        return None
     window = WindowEdges.of(s, replace(model, ends=None), 1.0)
     copies = (track < 0) & (join_duplicates(track, leader) >= 0)
     return learn_road_ends(s, track, window.leaving, window.arriving, copies)
