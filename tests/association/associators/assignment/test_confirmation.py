@@ -133,21 +133,42 @@ def _in_units(d: Detections, position: float = 1.0, time: float = 1.0) -> Detect
     )
 
 
-@pytest.mark.parametrize(
-    "case",
-    ["positions in km", "times in ms", "road numbered against the traffic"],
-)
-def test_a_batch_whose_units_or_direction_fit_no_vehicle_says_so(case, caplog):
+@pytest.mark.parametrize("case", ["positions in km", "times in ms"])
+def test_a_batch_whose_units_fit_no_vehicle_says_so(case, caplog):
     d = simulate(preset("medium"), seed=0).detections
     bad = {
         "positions in km": _in_units(d, position=1e-3),
         "times in ms": _in_units(d, time=1e3),
-        "road numbered against the traffic": _in_units(d, position=-1.0),
     }[case]
     result = associate(bad, "assignment")
     assert any("could be linked to another: check that positions" in w for w in result.warnings)
     assert "matching units" in caplog.text
     assert not associate(d, "assignment").warnings
+
+
+@pytest.mark.parametrize(
+    "case", ["paper:medium", "paper:congested", "sumo-freeflow", "sumo-dense", "sumo-arterial"]
+)
+def test_a_road_numbered_against_the_traffic_says_so(case):
+    # In free flow nothing is linked; in dense traffic the wrong vehicles were (98.7 % of the
+    # detections linked, and no word): the nearest partner where speeds say, earlier, fits
+    # about four times better than later (0.8 % of a travel time against 2.9 % in SUMO's dense
+    # traffic).
+    if case.startswith("paper:"):
+        d = simulate(preset(case.removeprefix("paper:")), seed=0).detections
+    else:
+        d = read_detections_csv(COMMITTED_SUMO / f"{case}.csv").without_features()
+    reversed_road = _in_units(d, position=-1.0)
+    (warning,) = associate(reversed_road, "assignment").warnings
+    assert warning.startswith("the detections fit vehicles driving towards decreasing positions")
+    assert not associate(d, "assignment").warnings
+
+
+@pytest.mark.parametrize("case", ["sumo-queue", "sumo-stopgo"])
+def test_in_a_queue_the_direction_is_not_guessed(case):
+    # Crawling vehicles' speeds tell travel times poorly either way: nothing is said.
+    d = read_detections_csv(COMMITTED_SUMO / f"{case}.csv").without_features()
+    assert not associate(_in_units(d, position=-1.0), "assignment").warnings
 
 
 def _with_false_alarms(d: Detections, position: float, share: float, seed: int) -> Detections:
