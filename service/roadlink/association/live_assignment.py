@@ -37,6 +37,7 @@ from roadlink.association.associators.assignment.confidence import cut_weak_link
 from roadlink.association.associators.assignment.confirmation import confirm_targets
 from roadlink.association.associators.assignment.duplicates import (
     duplicate_followers,
+    for_every_report,
     join_duplicates,
     once_each,
     repeat_of,
@@ -102,9 +103,7 @@ def associate_window(
         # Each report once, as offline (`AssignmentAssociator.group`).
         once, at = once_each(repeats)
         groups, judged, learned = associate_window(d.take(once), params, clock, learned)
-        every = np.full(repeats.size, np.nan)
-        every[once] = judged
-        return groups[at], every, learned
+        return (*for_every_report(repeats, once, at, groups, judged), learned)
     effective = within_time_scale(params, s.typical_travel_time())
     key = _key(params, s, d)
     if learned is not None and learned.key == key and clock - learned.clock < RELEARN_SECONDS:

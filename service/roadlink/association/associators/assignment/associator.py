@@ -26,6 +26,7 @@ from roadlink.association.associators.assignment.confirmation import (
 )
 from roadlink.association.associators.assignment.duplicates import (
     duplicate_followers,
+    for_every_report,
     join_duplicates,
     once_each,
     repeat_of,
@@ -119,10 +120,11 @@ class AssignmentAssociator(Associator):
         its report's group, carrying no link confidence (nothing links to it)."""
         kept, at = once_each(repeats)
         groups = self.group(detections.take(kept), progress)
-        confidence = np.full(repeats.size, np.nan)
-        confidence[kept] = self.link_confidence
-        self.link_confidence = confidence
-        return groups[at]
+        assert self.link_confidence is not None
+        every_group, self.link_confidence = for_every_report(
+            repeats, kept, at, groups, self.link_confidence
+        )
+        return every_group
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from roadlink.association.associators.assignment.features import NO_CLASS, Senso
 from roadlink.association.associators.assignment.gating import GATE_AT_ONCE
 from roadlink.association.associators.assignment.params import AssignmentParams
 from roadlink.association.associators.assignment.sensors import Sensors
-from roadlink.association.detections import NO_LANE, Detections, IntArray
+from roadlink.association.detections import NO_LANE, Detections, FloatArray, IntArray
 
 
 def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
@@ -79,7 +79,8 @@ def repeat_of(s: Sensors, d: Detections) -> IntArray | None:
     if not same.any():
         return None
     run_start = np.r_[True, ~same]
-    run = (np.cumsum(run_start) - 1)[np.argsort(o)]  # each report's run, by report
+    run = np.empty_like(o)
+    run[o] = np.cumsum(run_start) - 1  # each report's run, by report
     if d.features:
         run = _split_by_features(d, run, o[np.r_[same, False] | np.r_[False, same]])
     first = np.full(run.max() + 1, o.size, dtype=np.int64)
@@ -105,6 +106,17 @@ def once_each(repeats: IntArray) -> tuple[IntArray, IntArray]:
     place among them of the report it is (`repeat_of`)."""
     kept = np.flatnonzero(repeats == np.arange(repeats.size))
     return kept, np.searchsorted(kept, repeats)
+
+
+def for_every_report(
+    repeats: IntArray, kept: IntArray, at: IntArray, groups: IntArray, confidence: FloatArray
+) -> tuple[IntArray, FloatArray]:
+    """The `groups` and link `confidence` of the reports kept once (`once_each`) given to every
+    report: a repeat takes its report's group, and no confidence (nothing links to it)."""
+    every = np.full(repeats.size, np.nan)
+    every[kept] = confidence
+    result: IntArray = groups[at]
+    return result, every
 
 
 def _lead_from_roots(s: Sensors, leader: IntArray, window: float, tolerance: float) -> None:

@@ -76,13 +76,13 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
     samples = [
         s.members(p)[:: max(1, s.members(p).size // PRIOR_SAMPLE)] for p in range(n_sensors - 1)
     ]
-    tested = [p for p in range(n_sensors - 1) if tested_segment(s, samples[p], p)]
+    tested = [tested_segment(s, sample, p) for p, sample in enumerate(samples)]
     weak: dict[int, float] = {}
-    for p in tested:
+    for p in np.flatnonzero(tested).tolist():
         log_bias[p, 1], confirmed = travel_time_bumps(s, samples[p], p + 1, params)
         if confirmed is not None:
             weak[p] = confirmed
-    few = sorted(set(range(n_sensors - 1)) - set(tested))
+    few = np.flatnonzero(~np.array(tested, dtype=bool)).tolist()
     log_bias[few, 1] = few_targets_priors(s, [samples[p] for p in few], np.array(few) + 1)
     # A mode needs true pairs to pile up: where either sensor saw only a vehicle or two (it
     # failed, or came online at the batch's end), the one bin a pair falls in is as high as any,
