@@ -1,6 +1,7 @@
 """A passage reported twice (`assignment/duplicates.py`): which report may copy which, and the
 copy joining its twin's target."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -220,3 +221,25 @@ def test_dense_traffic_sent_twice_groups_as_sent_once(case):
     assert double.link_confidence is not None and single.link_confidence is not None
     np.testing.assert_array_equal(double.link_confidence[:n], single.link_confidence)
     assert np.isnan(double.link_confidence[n:]).all()
+
+
+def stamped_coarsely(d: Detections) -> Detections:
+    """`d` as detectors that stamp whole seconds and read whole km/h report it."""
+    return replace(d, timestamp=np.round(d.timestamp), velocity=np.round(d.velocity * 3.6) / 3.6)
+
+
+def test_vehicles_alike_by_chance_in_coarse_readings_are_not_repeats():
+    # SUMO's dense traffic in whole seconds and km/h: 164 of 1,719 reports share a sensor, a
+    # second and a speed with another, no more often than consecutive reports a second apart
+    # share a speed. Read as repeats, each such vehicle took another's target.
+    coarse = stamped_coarsely(read_detections_csv(COMMITTED_SUMO / "sumo-dense.csv"))
+    s = arrange(coarse, AssignmentParams())
+    o = s.order
+    alike = (s.time[o[1:]] == s.time[o[:-1]]) & (coarse.velocity[o[1:]] == coarse.velocity[o[:-1]])
+    assert np.count_nonzero(alike & (s.sensor[o[1:]] == s.sensor[o[:-1]])) > 50
+    assert repeat_of(s, coarse) is None
+    # Sent twice, the same coarse reports are repeats again, every one.
+    twice = coarse.take(np.r_[np.arange(len(coarse)), np.arange(len(coarse))])
+    repeats = repeat_of(arrange(twice, AssignmentParams()), twice)
+    assert repeats is not None
+    assert (repeats[len(coarse) :] != np.arange(len(coarse), len(twice))).all()

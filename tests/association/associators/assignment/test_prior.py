@@ -4,11 +4,13 @@ do not, and sums of the segments' travel times over missed sensors."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from roadlink.association import associate
 from roadlink.association.associators.assignment import AssignmentParams
 from roadlink.association.associators.assignment.prior import (
     PRIOR_BINS,
@@ -209,3 +211,17 @@ def test_a_handful_of_targets_keeps_the_kinematic_prediction_its_own_bin_holds(
     d = simulate(preset(name, n_targets=n_targets), seed=seed).detections
     model = segment_prior(arrange(sensor_cut(d, 2, n_targets // 2), PARAMS), 3, PARAMS)
     np.testing.assert_array_equal(model.log_bias[:-1, 1], 0.0)
+
+
+def test_times_stamped_in_whole_seconds_leave_short_segments_kinematic():
+    # SUMO's irregular road (sensors 30 to 700 m apart) stamped in whole seconds: every travel
+    # time a whole number of seconds made the histogram a comb, and a tooth of it stood out as
+    # a travel time 0.75 of the kinematic one on a segment of 35 m, 1.3 s (its links priced by
+    # it, 88.1 % of the detections right); spread within their second, every segment keeps the
+    # kinematic prediction, as it does stamped to the hundredth.
+    d = read_detections_csv(Path(__file__).parents[3] / "data" / "sumo" / "sumo-irregular.csv")
+    whole = replace(d, timestamp=np.round(d.timestamp))
+    prior = segment_prior(arrange(whole, PARAMS), PARAMS.max_skip + 1, PARAMS)
+    np.testing.assert_array_equal(prior.log_bias[:-1, 1], 0.0)
+    result = associate(whole)
+    assert result.metrics is not None and result.metrics.accuracy >= 0.895

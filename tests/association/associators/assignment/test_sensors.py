@@ -163,3 +163,48 @@ def test_a_sparse_sensors_typical_speed_is_its_neighbours():
     assert s.median_speed[3] > 1.1 * max(s.median_speed[2], s.median_speed[4])
     assert s.typical_speed[3] == pytest.approx(0.5 * (s.median_speed[2] + s.median_speed[4]))
     np.testing.assert_array_equal(np.delete(s.typical_speed, 3), np.delete(s.median_speed, 3))
+
+
+def stamped(timestamps: list[float], positions: list[float] | None = None) -> Detections:
+    """Detections at these times, at 0 and 100 m (or `positions`), each of its own speed."""
+    n = len(timestamps)
+    return Detections.from_columns(
+        position=positions or [0.0] * (n // 2) + [100.0] * (n - n // 2),
+        velocity=np.linspace(19.0, 21.0, n),
+        timestamp=timestamps,
+    )
+
+
+@pytest.mark.parametrize(
+    ("timestamps", "step"),
+    [
+        ([3.0, 1.0, 1.0, 7.0, 5.0, 6.0], 1.0),  # whole seconds
+        ([10.3, 10.1, 10.9, 15.5, 15.7, 16.7], pytest.approx(0.2)),  # fifths, off whole ones
+        ([0.0, 1.5, 3.0, 1e9, 1e9 + 1.5, 1e9 + 4.5], 1.5),  # epoch seconds, each sensor its own
+        ([0.0, 1.3, 2.9, 5.0, 6.1, 7.2], 0.0),  # not one step
+        ([1.0, 1.0, 1.0, 2.0, 2.0, 2.0], 0.0),  # no two distinct times at one sensor
+    ],
+)
+def test_the_step_times_are_stamped_in_is_the_least_gap_every_time_falls_on(timestamps, step):
+    assert arrange(stamped(timestamps), AssignmentParams()).time_step == step
+
+
+def test_times_stamped_coarsely_are_spread_within_their_step_and_sorted_again():
+    rng = np.random.default_rng(0)
+    start = np.sort(rng.uniform(0.0, 100.0, 50))
+    exact: np.ndarray = np.r_[start, start + 2.5]  # 50 m at 20 m/s: 2.5 s
+    d = stamped(list(map(float, np.round(exact))), [0.0] * 50 + [50.0] * 50)
+    s = arrange(d, AssignmentParams())
+    # Steps under a share of the shortest segment's travel time (here 2.5 s) are left alone.
+    assert s.within_step(0.5) is s
+    spread = s.within_step(0.25)
+    assert np.abs(spread.time - s.time).max() <= 0.5
+    assert np.unique(spread.time).size == spread.time.size
+    for k in range(2):
+        assert (np.diff(spread.sorted_time[spread.start[k] : spread.start[k + 1]]) > 0).all()
+    np.testing.assert_array_equal(spread.time[spread.order], spread.sorted_time)
+    np.testing.assert_array_equal(spread.sensor[spread.order], s.sensor[s.order])
+    # The same draws for the same detections, whatever their input order.
+    shuffled = rng.permutation(len(d))
+    again = arrange(d.take(shuffled), AssignmentParams()).within_step(0.25)
+    np.testing.assert_array_equal(again.time, spread.time[shuffled])

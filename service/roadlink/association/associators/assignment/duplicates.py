@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from roadlink.association.associators.assignment.features import NO_CLASS, SensorFeatures
-from roadlink.association.associators.assignment.gating import GATE_AT_ONCE
+from roadlink.association.associators.assignment.gating import GATE_AT_ONCE, BoolArray
 from roadlink.association.associators.assignment.params import AssignmentParams
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.detections import NO_LANE, Detections, FloatArray, IntArray
@@ -83,10 +83,49 @@ def repeat_of(s: Sensors, d: Detections) -> IntArray | None:
     run[o] = np.cumsum(run_start) - 1  # each report's run, by report
     if d.features:
         run = _split_by_features(d, run, o[np.r_[same, False] | np.r_[False, same]])
+    if _alike_by_chance(s, d):
+        return None
     first = np.full(run.max() + 1, o.size, dtype=np.int64)
     np.minimum.at(first, run, np.arange(o.size))
     result: IntArray = first[run]
     return None if (result == np.arange(o.size)).all() else result
+
+
+def _alike_by_chance(s: Sensors, d: Detections) -> bool:
+    """Whether the reports that share a sensor and a time also share their speed (and features:
+    `run`) no more often than a sensor's consecutive reports at different times do: detectors
+    that stamp whole seconds and read whole km/h report two vehicles side by side alike by
+    chance (SUMO's dense traffic so rounded: 164 of 1,719 reports), where a batch sent again
+    repeats its reports exactly. Such reports are vehicles of their own, not repeats.
+
+    Consecutive reports at different times share their reading as often as reports at one
+    time would by chance (neighbours in time drive alike in both); the reports at one time may
+    share it 3 binomial standard deviations more often than that before any is a repeat."""
+    o = s.order
+    a, b = o[:-1], o[1:]
+    one_sensor = s.sensor[a] == s.sensor[b]
+    at_once = one_sensor & (s.time[a] == s.time[b])
+    alike = (d.velocity[a] == d.velocity[b]) & _features_alike(d, a, b)
+    apart = one_sensor & ~at_once
+    if not apart.any():
+        return False
+    chance = np.count_nonzero(alike & apart) / np.count_nonzero(apart)
+    tied = np.count_nonzero(at_once)
+    expected = chance * tied
+    return np.count_nonzero(alike & at_once) <= expected + 3.0 * np.sqrt(expected * (1.0 - chance))
+
+
+def _features_alike(d: Detections, a: IntArray, b: IntArray) -> BoolArray:
+    """Reports a and b read the same lane, length and class (True where not reported)."""
+    alike = np.ones(a.size, dtype=bool)
+    if d.lane is not None:
+        alike &= d.lane[a] == d.lane[b]
+    if d.length is not None:
+        same_length = (d.length[a] == d.length[b]) | (np.isnan(d.length[a]) & np.isnan(d.length[b]))
+        alike &= same_length
+    if d.vehicle_class is not None:
+        alike &= d.vehicle_class[a] == d.vehicle_class[b]
+    return alike
 
 
 def _split_by_features(d: Detections, run: IntArray, shared: IntArray) -> IntArray:

@@ -20,6 +20,9 @@ from roadlink.association.associators.base import AssociatorParams
 # guess, in bins of 5 %, from a sample of this many detections per sensor.
 PRIOR_LOG_RANGE = float(np.log(10.0))
 PRIOR_BIN = 0.05
+# Times stamped in steps of at least this many bins of the shortest segment's travel time are
+# spread within their step before the prior's histograms (`Sensors.within_step`).
+PRIOR_STEP_BINS = 0.25
 PRIOR_SAMPLE = 400
 # Unrelated pairs are counted by moving every pair's travel time by this many typical kinematic
 # travel times either way, in this many steps a side, over at most this many pairs

@@ -24,6 +24,7 @@ from roadlink.association.associators.assignment.params import (
     PRIOR_SIDEBANDS,
     PRIOR_SIGNIFICANCE,
     PRIOR_SMOOTHING,
+    PRIOR_STEP_BINS,
     PRIOR_TAILS,
     PRIOR_TEST_SAMPLE,
     PRIOR_WEAK_SIGNIFICANCE,
@@ -54,17 +55,17 @@ PRIOR_SMOOTHING_SQUARED = np.square(PRIOR_SMOOTHING)
 
 
 def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> SegmentModel:
-    """What the detections say before any of them is linked.
-
-    Every segment's travel-time bias is the mode of log(observed / kinematic travel time) over
-    all pairs of its end sensors' detections within a broad window: the true pairs pile up at
-    the segment's bias, unrelated pairs spread thin (`travel_time_bumps`). So a slow zone that
-    changes speeds at a sensor shows here, before the first link is made. A link over missed
-    detections (span > 1) takes the sum of its segments' typical travel times: travel times add
-    up, while between distant sensors there are many more unrelated pairs per true one, and the
-    highest bump of their mode is mostly chance. The speed ratio is that of the sensors' median
-    speeds; the skew is the kinematic one, until learned.
+    """What the detections say before any of them is linked. Every segment's travel-time bias
+    is the mode of log(observed / kinematic travel time) over all pairs of its end sensors'
+    detections within a broad window: the true pairs pile up at the segment's bias, unrelated
+    pairs spread thin (`travel_time_bumps`). So a slow zone that changes speeds at a sensor
+    shows here, before the first link is made. A link over missed detections (span > 1) takes
+    the sum of its segments' typical travel times: travel times add up, while between distant
+    sensors there are many more unrelated pairs per true one, and the highest bump of their
+    mode is mostly chance. Speed ratios are the sensors' median speeds'; skews kinematic, until
+    learned. Times stamped in coarse steps are spread within them first (`Sensors.within_step`).
     """
+    s = s.within_step(PRIOR_STEP_BINS * PRIOR_BIN)
     n_sensors = s.positions.size
     shape = (n_sensors, max_span + 1)
     span_axis = np.arange(max_span + 1, dtype=np.float64)

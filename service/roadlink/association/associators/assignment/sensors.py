@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -23,6 +23,12 @@ BoolArray = npt.NDArray[np.bool_]
 # The share of a travel time predicted from the far end's speed, before a segment learns its own:
 # both ends' speeds weigh alike.
 KINEMATIC_SKEW = 0.5
+# Times are stamped in steps where each lies within this share of a step of a whole number of
+# steps from its sensor's first time.
+STEP_TOLERANCE = 1e-3
+# The spreading of stamped times over their step (`Sensors.within_step`) draws from this seed:
+# the same batch gets the same times, run after run.
+SPREAD_SEED = 0
 
 
 def travel_time(
@@ -153,6 +159,52 @@ class Sensors:
         sort (timsort, quicker on the runs of a track's detections) gives the same order."""
         key = track[detections] * self.positions.size + self.sensor[detections]
         return detections[key.argsort(kind="stable")]
+
+    @cached_property
+    def time_step(self) -> float:
+        """The step the times are stamped in (a whole second, a tenth), or 0 where they fall on
+        none: the smallest gap between a sensor's distinct times, where every time lies a whole
+        number of it from its sensor's first (a sensor's clock set right moves them all)."""
+        gaps = np.diff(self.sorted_time)
+        gaps[self.start[1:-1] - 1] = 0.0  # from one sensor's last time to the next one's first
+        positive = gaps[gaps > 0]
+        if positive.size == 0:
+            return 0.0
+        step = float(positive.min())
+        first = np.repeat(self.first_time, np.diff(self.start))
+        steps = (self.sorted_time - first) / step
+        off = np.abs(steps - np.rint(steps))
+        return step if bool((off[np.isfinite(off)] <= STEP_TOLERANCE).all()) else 0.0
+
+    def within_step(self, share: float) -> Sensors:
+        """These detections with every time moved by a uniform draw within its stamp's step
+        (`time_step`), and sorted again, where that step is at least `share` of the shortest
+        segment's typical travel time; else these detections as they are. A stamped time says
+        only that the passage fell within its step: a histogram of travel times (the prior's)
+        built from whole steps is a comb, whose teeth stand out as biases (SUMO's irregular
+        road, sensors 30 to 700 m apart, stamped in whole seconds: a travel time 0.41 of the
+        kinematic one on a segment of 60 m, 2.3 s)."""
+        step = self.time_step
+        if step == 0.0 or self.positions.size < 2:
+            return self
+        speeds = self.median_speed
+        shortest = travel_time(np.diff(self.positions), speeds[:-1], speeds[1:]).min()
+        if step < share * shortest:
+            return self
+        draws = np.random.default_rng(SPREAD_SEED).uniform(-step / 2, step / 2, self.time.size)
+        time = self.time.copy()
+        time[self.order] += draws  # by place in `order`: the same whatever the input's order
+        order = np.lexsort((time, self.sensor)).astype(np.int64)
+        return replace(
+            self,
+            order=order,
+            time=time,
+            sorted_time=time[order],
+            sorted_inverse_speed=1.0 / self.speed[order],
+            sorted_log_speed=self.log_speed[order],
+            _reaching={},
+            _starts=[],
+        )
 
     def typical_travel_time(self) -> float | None:
         """The median kinematic travel time between neighbouring sensors at their median speeds
