@@ -39,6 +39,10 @@ in step drift by seconds.
 `--quiet` has the middle sensor stop reporting early (`firstN`: it keeps its first N reports)
 or start late (`lastN`: its last N), as a detector that fails, loses power or comes back
 online part-way through a batch does (`with_quiet`).
+
+`--time-step S` stamps every detection to the nearest S seconds, and `--whole-speeds kmh` (or
+`mph`) reads every speed to a whole km/h (mile an hour), as many field detectors and traffic
+controllers report them (`with_readings`).
 """
 
 from __future__ import annotations
@@ -173,6 +177,25 @@ def quiet_option(value: str) -> str:
     return value
 
 
+# A speed in m/s is this many of each unit (`--whole-speeds`).
+SPEED_UNITS = {"kmh": 3.6, "mph": 3600.0 / 1609.344}
+
+
+def with_readings(
+    detections: Detections, time_step: float | None, speed_unit: str | None
+) -> Detections:
+    """The case as detectors that stamp times to the nearest `time_step` seconds and read speeds
+    to a whole `speed_unit` (SPEED_UNITS; at least one) would report it; None leaves either as
+    it is."""
+    timestamp, velocity = detections.timestamp, detections.velocity
+    if time_step is not None:
+        timestamp = np.round(timestamp / time_step) * time_step
+    if speed_unit is not None:
+        per_unit = SPEED_UNITS[speed_unit]
+        velocity = np.maximum(np.round(velocity * per_unit), 1.0) / per_unit
+    return dataclasses.replace(detections, timestamp=timestamp, velocity=velocity)
+
+
 # The column title's suffix for the features a case reports (`--features`, `--lanes-alone`).
 FEATURE_SUFFIX = {"all": "", "none": " -f", "lane": " -l"}
 
@@ -282,6 +305,12 @@ def main() -> None:
         help="The middle sensor stops reporting early (firstN: keeps its first N reports) or "
         "starts late (lastN).",
     )
+    parser.add_argument(
+        "--time-step", type=float, help="Stamp every time to the nearest this many seconds."
+    )
+    parser.add_argument(
+        "--whole-speeds", choices=sorted(SPEED_UNITS), help="Read every speed to a whole unit."
+    )
     parser.add_argument("--length-noise", type=float, default=LENGTH_NOISE)
     parser.add_argument("--data", type=Path, help="Read the cases' CSVs from here (no SUMO).")
     parser.add_argument("--export", type=Path, help="Also write the simulated cases' CSVs here.")
@@ -326,6 +355,7 @@ def main() -> None:
         for seed in range(args.seeds):
             detections = load_case(scenario, seed, args.data, args.export, noise)
             detections = with_quiet(with_clock(detections, args.clock, seed), args.quiet)
+            detections = with_readings(detections, args.time_step, args.whole_speeds)
             sizes.setdefault(scenario, []).append(describe(detections))
             for (name, features), title in zip(columns, titles, strict=True):
                 case = with_reported(detections, features)
@@ -362,6 +392,8 @@ def main() -> None:
                 "length_noise": noise,
                 "clock": args.clock,
                 "quiet": args.quiet,
+                "time_step": args.time_step,
+                "whole_speeds": args.whole_speeds,
                 "timeout_seconds": args.timeout,
                 "scenarios": {
                     name: {"description": EVERY_SCENARIO[name].description, "cases": sizes[name]}

@@ -100,3 +100,14 @@ def test_a_quiet_middle_sensor_keeps_its_first_or_last_reports_alone():
     assert bench.with_quiet(d, None) is d
     with pytest.raises(ValueError, match="firstN"):
         bench.with_quiet(d, "early2")
+
+
+def test_coarse_readings_stamp_whole_steps_and_read_whole_units():
+    d = Detections.from_columns([0.0, 100.0, 200.0], [10.0, 27.8, 0.1], [0.26, 5.74, 9.5])
+    np.testing.assert_allclose(bench.with_readings(d, 0.5, None).timestamp, [0.5, 5.5, 9.5])
+    np.testing.assert_array_equal(bench.with_readings(d, 1.0, None).velocity, d.velocity)
+    kmh = bench.with_readings(d, None, "kmh")
+    np.testing.assert_allclose(kmh.velocity * 3.6, [36.0, 100.0, 1.0])  # never 0
+    np.testing.assert_array_equal(kmh.timestamp, d.timestamp)
+    mph = bench.with_readings(d, None, "mph").velocity / 0.44704
+    np.testing.assert_allclose(mph, [22.0, 62.0, 1.0])
