@@ -35,6 +35,10 @@ motorway, five seeds, a middle sensor stated 30 / 45 / 100 m off: 84 / 75 / 86 %
 92 / 87 / 86 % now, 92 % in place). What one offset leaves over where speeds differ is the
 learned biases' (on the irregular road, with 30 % trucks, 60 m off: 92.9 -> 91.8 %, where the
 learned biases, factors like the position's error, did better). Hence the warning names both.
+
+Lags are gathered within a minute of the kinematic travel times (`CLOCK_REACH`). A clock
+minutes or hours off (a time zone or daylight saving time set wrongly) is found first, at any
+lag and at either end of the road, by `far_clocks`, and this search measures what it leaves.
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from roadlink.association.associators.assignment.far_clocks import far_offsets
 from roadlink.association.associators.assignment.matching import matched_cost
 from roadlink.association.associators.assignment.sensors import travel_time
 from roadlink.association.detections import FloatArray, IntArray
@@ -113,6 +118,10 @@ def clock_offsets(
         [sorted_time[start[k] : start[k + 1]].copy() for k in range(n)],
         [sorted_speed[start[k] : start[k + 1]] for k in range(n)],
     )
+    # Minutes or hours off first: beyond the reach of the lags below.
+    offsets += far_offsets(positions, road.times, road.speeds)
+    for k in np.flatnonzero(offsets).tolist():
+        road.times[k] -= offsets[k]
     lags = road.lags(list(range(n - 1)))
     for _ in range(n - 2):
         found = {}
