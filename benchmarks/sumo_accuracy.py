@@ -33,8 +33,10 @@ directory of their own: their names are the scenarios'.
 `--clock` sets the sensors' clocks off before every associator sees a case (`with_clock`):
 `late2` puts the middle sensor's clock 2 s late, `early2` early, and `spread1` offsets every
 sensor's clock by a normal draw of 1 s (std; drawn from the seed, the same for every
-associator); any number of seconds may follow the word. Field sensors that no GPS or NTP keeps
-in step drift by seconds.
+associator); any number of seconds may follow the word, and `first` or `last` after it moves
+the first or last sensor's clock instead of the middle one's (`late3600last`). Field sensors
+that no GPS or NTP keeps in step drift by seconds; a time zone or daylight saving time set
+wrongly puts one an hour off.
 
 `--quiet` has the middle sensor stop reporting early (`firstN`: it keeps its first N reports)
 or start late (`lastN`: its last N), as a detector that fails, loses power or comes back
@@ -121,25 +123,29 @@ def load_case(
     return detections
 
 
-CLOCK = re.compile(r"(late|early|spread)(\d+(?:\.\d+)?)")
+CLOCK = re.compile(r"(late|early|spread)(\d+(?:\.\d+)?)(first|last)?")
 
 
 def with_clock(detections: Detections, clock: str | None, seed: int) -> Detections:
     """The case as sensors whose clocks are off would report it (`--clock`): `lateS` / `earlyS`
-    shift the middle sensor's timestamps by S seconds, `spreadS` every sensor's by a normal
-    draw of S seconds (std) from `seed`; None leaves the case as it is."""
+    shift the middle sensor's timestamps by S seconds (`lateSfirst`, `lateSlast`: the first or
+    last sensor's), `spreadS` every sensor's by a normal draw of S seconds (std) from `seed`;
+    None leaves the case as it is."""
     if clock is None:
         return detections
     match = CLOCK.fullmatch(clock)
     if match is None:
         raise ValueError(f"--clock: expected lateS, earlyS or spreadS (S seconds), got {clock!r}")
-    kind, seconds = match.group(1), float(match.group(2))
+    kind, seconds, which = match.group(1), float(match.group(2)), match.group(3)
     positions = np.unique(detections.position)
     if kind == "spread":
+        if which is not None:
+            raise ValueError(f"--clock: spreadS moves every sensor's clock, got {clock!r}")
         offsets = np.random.default_rng(seed).normal(0.0, seconds, positions.size)
     else:
         offsets = np.zeros(positions.size)
-        offsets[positions.size // 2] = seconds if kind == "late" else -seconds
+        sensor = {"first": 0, "last": -1, None: positions.size // 2}[which]
+        offsets[sensor] = seconds if kind == "late" else -seconds
     shifted = detections.timestamp + offsets[np.searchsorted(positions, detections.position)]
     return dataclasses.replace(detections, timestamp=shifted)
 
@@ -296,8 +302,8 @@ def main() -> None:
     parser.add_argument(
         "--clock",
         type=clock_option,
-        help="Sensors' clocks off: lateS, earlyS (the middle sensor, S seconds) or spreadS "
-        "(every sensor, S seconds std).",
+        help="Sensors' clocks off: lateS, earlyS (the middle sensor, S seconds; lateSfirst, "
+        "lateSlast: the first or last) or spreadS (every sensor, S seconds std).",
     )
     parser.add_argument(
         "--quiet",

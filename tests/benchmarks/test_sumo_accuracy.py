@@ -82,6 +82,12 @@ def test_a_late_or_early_clock_shifts_the_middle_sensor_alone_and_a_spread_every
     assert bench.with_clock(d, None, seed=0) is d
     with pytest.raises(ValueError, match="lateS"):
         bench.with_clock(d, "slow2", seed=0)
+    first = bench.with_clock(d, "late3600first", seed=0).timestamp - d.timestamp
+    np.testing.assert_array_equal(first, np.where(d.position == 0, 3600, 0))
+    last = bench.with_clock(d, "early60last", seed=0).timestamp - d.timestamp
+    np.testing.assert_array_equal(last, np.where(d.position == 400, -60, 0))
+    with pytest.raises(ValueError, match="every sensor"):
+        bench.with_clock(d, "spread1last", seed=0)
 
 
 def test_a_quiet_middle_sensor_keeps_its_first_or_last_reports_alone():
