@@ -19,6 +19,10 @@ from roadlink.association.associators.assignment.params import AssignmentParams
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.detections import NO_LANE, Detections, FloatArray, IntArray
 
+# Reports at one sensor and time that share their readings this many binomial standard
+# deviations more often than consecutive reports do are repeats (`repeat_of`).
+REPEAT_DEVIATIONS = 3.0
+
 
 def duplicate_followers(s: Sensors, params: AssignmentParams) -> IntArray:
     """For every detection, the earlier report of the same sensor it may duplicate (-1 if none):
@@ -92,15 +96,17 @@ def repeat_of(s: Sensors, d: Detections) -> IntArray | None:
 
 
 def _alike_by_chance(s: Sensors, d: Detections) -> bool:
-    """Whether the reports that share a sensor and a time also share their speed (and features:
-    `run`) no more often than a sensor's consecutive reports at different times do: detectors
+    """Whether the reports that share a sensor and a time also share their speed (and lane,
+    length and class, where reported) no more often than a sensor's consecutive reports at
+    different times do: detectors
     that stamp whole seconds and read whole km/h report two vehicles side by side alike by
     chance (SUMO's dense traffic so rounded: 164 of 1,719 reports), where a batch sent again
     repeats its reports exactly. Such reports are vehicles of their own, not repeats.
 
     Consecutive reports at different times share their reading as often as reports at one
     time would by chance (neighbours in time drive alike in both); the reports at one time may
-    share it 3 binomial standard deviations more often than that before any is a repeat."""
+    share it REPEAT_DEVIATIONS binomial standard deviations more often than that before any is a
+    repeat."""
     o = s.order
     a, b = o[:-1], o[1:]
     one_sensor = s.sensor[a] == s.sensor[b]
@@ -112,7 +118,8 @@ def _alike_by_chance(s: Sensors, d: Detections) -> bool:
     chance = np.count_nonzero(alike & apart) / np.count_nonzero(apart)
     tied = np.count_nonzero(at_once)
     expected = chance * tied
-    return np.count_nonzero(alike & at_once) <= expected + 3.0 * np.sqrt(expected * (1.0 - chance))
+    spread = np.sqrt(expected * (1.0 - chance))
+    return np.count_nonzero(alike & at_once) <= expected + REPEAT_DEVIATIONS * spread
 
 
 def _features_alike(d: Detections, a: IntArray, b: IntArray) -> BoolArray:

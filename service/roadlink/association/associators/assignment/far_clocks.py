@@ -66,9 +66,8 @@ def far_offsets(
     positions: FloatArray, times: list[FloatArray], speeds: list[FloatArray]
 ) -> FloatArray:
     """Each sensor's clock offset (s; to be taken from its times) where it is far (`Lag.far`)
-    and the correlations show it; 0 elsewhere. `times[k]` are sensor k's
-    detection times (ascending), `speeds[k]` their speeds. With two sensors, which one is off
-    cannot be told."""
+    and the correlations show it; 0 elsewhere. `times[k]` are sensor k's detection times
+    (ascending), `speeds[k]` their speeds. With two sensors, which one is off cannot be told."""
     n = positions.size
     offsets = np.zeros(n)
     if n < 3:
@@ -146,8 +145,8 @@ class FarRoad(NamedTuple):
         flowing = 1.0 / FAR_SPEED_RATIO <= ratio <= FAR_SPEED_RATIO
         # Where the far sensor's first and last detections come within FAR_LEAST of a travel
         # time after the near one's, the batch's window opens and closes alike for both: no
-        # clock is far off, and the correlation (a fifth of a second at 10^6 detections over
-        # 16 hours) is not worked out.
+        # clock is far off, and the correlation (most of a second for the 49 segments of 10^6
+        # detections over 16 hours) is not worked out.
         ends = np.array([far[0] - near[0], far[-1] - near[-1]]) - typical
         if np.all(np.abs(ends) <= FAR_LEAST):
             return Lag(0.0, FAR_BIN_LEAST, typical, flowing)
