@@ -39,6 +39,7 @@ from roadlink.association.associators.assignment.params import (
 )
 from roadlink.association.associators.assignment.prior import segment_prior
 from roadlink.association.associators.assignment.refine import refine_boundaries
+from roadlink.association.associators.assignment.sensor_order import order_warnings
 from roadlink.association.associators.assignment.sensors import (
     Sensors,
     arrange,
@@ -87,6 +88,7 @@ class AssignmentAssociator(Associator):
         # Said once a run here, not by `arrange` and the prior, which live association repeats
         # every step.
         self.warnings = (
+            *order_warnings(s.positions, s.swapped),
             *clock_warnings(s.positions, s.clock_offsets),
             *speed_factor_warnings(s.positions, prior.log_bias[:-1, 1], s.median_speed),
             *one_speed_warnings(s),

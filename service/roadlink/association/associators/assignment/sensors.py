@@ -64,6 +64,7 @@ class Sensors:
     features: SensorFeatures | None = None  # lane, length, class, where detectors report them
     clock_offsets: FloatArray | None = None  # seconds taken from each sensor's times (`clocks`)
     speed_floor: float = 0.0  # what `speed` is floored at: a speed there was read lower
+    swapped: tuple[int, ...] = ()  # each k whose sensors k, k + 1 were exchanged (`sensor_order`)
     _reaching: dict[int, tuple[IntArray, IntArray]] = field(default_factory=dict, repr=False)
     _starts: list[int] = field(default_factory=list, repr=False)  # `start` as Python ints
 
@@ -220,16 +221,27 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     """Index the detections by sensor and time, with speeds floored (never divide by ~0)."""
     positions, sensor = np.unique(detections.position, return_inverse=True)
     sensor = sensor.astype(np.int64)
-    # Ties broken by speed, then input order, so a shuffled input gives the same grouping.
-    order = np.lexsort((detections.velocity, detections.timestamp, sensor)).astype(np.int64)
-    start = np.searchsorted(sensor[order], np.arange(positions.size + 1)).astype(np.int64)
+    order, start = _by_sensor_and_time(detections, sensor, positions.size)
     floor = params.velocity_floor * float(median(detections.velocity))
     speed = np.maximum(detections.velocity, floor)
-    # Where a sensor's clock is off, its times are set right: the tracks are built on them.
-    # (`clocks` measures lags against this module's `travel_time`, hence imported here.)
+    # Where two sensors' positions are swapped, their detections are taken the other way
+    # round; where a sensor's clock is off, its times are set right: the tracks are built on
+    # them. (Both measure lags against this module's `travel_time`, hence imported here.)
     from roadlink.association.associators.assignment.clocks import clock_offsets
+    from roadlink.association.associators.assignment.sensor_order import (
+        in_road_order,
+        swapped_pairs,
+    )
 
     time = detections.timestamp
+    swapped = swapped_pairs(
+        positions,
+        [time[order[start[k] : start[k + 1]]] for k in range(positions.size)],
+        [speed[order[start[k] : start[k + 1]]] for k in range(positions.size)],
+    )
+    if swapped:
+        sensor = in_road_order(sensor, swapped)
+        order, start = _by_sensor_and_time(detections, sensor, positions.size)
     offsets = clock_offsets(positions, time[order], speed[order], start)
     if offsets.any():
         time = time - offsets[sensor]
@@ -254,7 +266,18 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         SensorFeatures.of(detections),
         offsets,
         floor,
+        tuple(swapped),
     )
+
+
+def _by_sensor_and_time(
+    detections: Detections, sensor: IntArray, n_sensors: int
+) -> tuple[IntArray, IntArray]:
+    """The detections' order by sensor, then time, and where each sensor's run starts. Ties
+    broken by speed, then input order, so a shuffled input gives the same grouping."""
+    order = np.lexsort((detections.velocity, detections.timestamp, sensor)).astype(np.int64)
+    start = np.searchsorted(sensor[order], np.arange(n_sensors + 1)).astype(np.int64)
+    return order, start
 
 
 # A sensor with at least this many detections that all report one speed is named.
