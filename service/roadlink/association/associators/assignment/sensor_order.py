@@ -16,14 +16,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from roadlink.association.associators.assignment.clocks import Lag, Road
+from roadlink.association.associators.assignment.clocks import CLOCK_LEAST_DETECTIONS, Lag, Road
 from roadlink.association.detections import FloatArray, IntArray
 
 # A segment keeps time where its lag's peak lies within this share of its typical travel time
 # (and a bin) of the kinematic prediction.
 KEPT_SHARE = 0.25
-# Fewer detections at any of the four sensors round a pair and it is not tested.
-ORDER_LEAST_DETECTIONS = 50
 
 
 def swapped_pairs(
@@ -32,7 +30,8 @@ def swapped_pairs(
     """Each k whose sensors k and k + 1 report each other's vehicles (the pairs apart, in road
     order). `times[k]` are sensor k's detection times (ascending), `speeds[k]` their speeds."""
     n = positions.size
-    if n < 3 or min(t.size for t in times) < ORDER_LEAST_DETECTIONS:
+    # Fewer detections at a sensor and its segments' lags are not measured (`clocks`).
+    if n < 3 or min(t.size for t in times) < CLOCK_LEAST_DETECTIONS:
         return []
     road = Road(positions, list(times), list(speeds))
     lags = road.lags(list(range(n - 1)))
