@@ -69,8 +69,9 @@ def test_a_sensor_that_measures_no_length_is_handled_per_detection():
 
 # Lanes alone (single loops that report their lane, no length): stop-and-go on the committed
 # seed-0 case, with lane-order anchors and without them (`lane_anchors=false`), as measured
-# (0.652 and 0.441 before a report in another lane could no longer be taken for a copy).
-MEASURED_LANES_ALONE = (0.654, 0.447)
+# (0.652 and 0.441 before a report in another lane could no longer be taken for a copy; 0.654
+# and 0.447 before the detections of a track too weak to be a target were judged one by one).
+MEASURED_LANES_ALONE = (0.657, 0.453)
 
 
 @pytest.mark.slow

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import numpy.typing as npt
 
@@ -23,6 +25,14 @@ from roadlink.association.associators.assignment.tracks import (
 )
 from roadlink.association.detections import FloatArray, IntArray
 
+# A segment's longest travel time, as its tracks took it, is this quantile of their links'.
+OBSERVED_TRAVEL_QUANTILE = 0.9
+# ... read where at least this many links cross it.
+OBSERVED_LEAST_LINKS = 5
+# A sensor's surplus over its neighbour's count is a queue's where it passes this many Poisson
+# deviations of that count.
+STORED_DEVIATIONS = 3.0
+
 
 def confirm_targets(
     s: Sensors,
@@ -38,8 +48,12 @@ def confirm_targets(
     links; their evidence stays small, a real target's does not. A track shorter than
     `min_track_length` is kept only when the batch's time window explains its shortness: the
     batch cut it off at both ends (`starts_explained`, `ends_explained`), as it does a vehicle
-    that passed the first sensor in its last seconds. Links are costed as the linking costed
-    them, lane-order `anchors` included.
+    that passed the first sensor in its last seconds, or a queue held it between two sensors
+    (`stored_at_edges`). A track too weak to be a target is not all false alarms: inside a
+    queue, links fit hardly better than chance, and a vehicle's detections end up in such
+    tracks. Each of its detections is judged as a lone one instead, and kept as a target of its
+    own where the window explains it (a false alarm in the middle of the batch still is not).
+    Links are costed as the linking costed them, lane-order `anchors` included.
     """
     out = np.full(track.size, -1, dtype=np.int64)
     assigned = np.flatnonzero(track >= 0)
@@ -54,12 +68,14 @@ def confirm_targets(
     evidence = track_evidence(s, model, params, chain, ids, anchors)
     convincing = (evidence >= params.min_track_evidence) | (sizes == 1)
     long_enough = sizes >= params.min_track_length
-    long_enough[ids[start]] |= starts_explained(s, model, chain[start]) & ends_explained(
-        s, model, chain[end]
-    )
+    explained = _window_explains(s, model, observed_travel(s, chain, ids))
+    long_enough[ids[start]] |= explained(chain[start], chain[end])
     good = convincing & long_enough
     keep = chain[good[ids]]
     _, out[keep] = unique_inverse(track[keep])  # np.unique's, quicker on a few
+    weak = chain[~convincing[ids]]
+    lone = weak[explained(weak, weak)]
+    out[lone] = out.max(initial=-1) + 1 + np.arange(lone.size)
     return out
 
 
@@ -122,30 +138,102 @@ def _level_before(s: Sensors, chain: IntArray, ids: IntArray, linked: IntArray) 
     return before
 
 
-def starts_explained(s: Sensors, model: SegmentModel, first: IntArray) -> BoolArray:
+def _window_explains(
+    s: Sensors, model: SegmentModel, observed: FloatArray
+) -> Callable[[IntArray, IntArray], BoolArray]:
+    """Whether the batch's window explains a track from detection `first` to `last` (arrays of
+    them), by the times its segments take (`observed`, as `observed_travel`) or by what a queue
+    holds between its sensors (`stored_at_edges`)."""
+    stored_first, stored_last = stored_at_edges(s)
+
+    def explained(first: IntArray, last: IntArray) -> BoolArray:
+        starts = starts_explained(s, model, first, observed) | stored_first[first]
+        return starts & (ends_explained(s, model, last, observed) | stored_last[last])
+
+    return explained
+
+
+def starts_explained(
+    s: Sensors, model: SegmentModel, first: IntArray, observed: FloatArray | None = None
+) -> BoolArray:
     """Whether a track starting with detection `first` needs no missed detection to explain its
     start: it is at the first sensor, or the batch began too recently for its target to have
-    passed the previous sensor inside it."""
+    passed the previous sensor inside it (`observed`: each segment's longest travel time as
+    its tracks took it, `observed_travel`)."""
     p = s.sensor[first]
     before = np.maximum(p - 1, 0)
-    return (p == 0) | (s.time[first] - _longest_travel(s, model, first, before) < s.time.min())
+    longest = _longest_travel(s, model, first, before, observed)
+    return (p == 0) | (s.time[first] - longest < s.time.min())
 
 
-def ends_explained(s: Sensors, model: SegmentModel, last: IntArray) -> BoolArray:
+def ends_explained(
+    s: Sensors, model: SegmentModel, last: IntArray, observed: FloatArray | None = None
+) -> BoolArray:
     """Whether a track ending with detection `last` needs no missed detection to explain its
     end: it is at the last sensor, or the batch ended too soon for its target to reach the
-    next one inside it."""
+    next one inside it (`observed` as in `starts_explained`)."""
     p = s.sensor[last]
     final = s.positions.size - 1
     after = np.minimum(p, max(final - 1, 0))
-    return (p == final) | (s.time[last] + _longest_travel(s, model, last, after) > s.time.max())
+    longest = _longest_travel(s, model, last, after, observed)
+    return (p == final) | (s.time[last] + longest > s.time.max())
 
 
-def _longest_travel(s: Sensors, model: SegmentModel, a: IntArray, p: IntArray) -> FloatArray:
-    """Longest plausible travel time of detection a's target over the segment p -> p + 1."""
+def _longest_travel(
+    s: Sensors, model: SegmentModel, a: IntArray, p: IntArray, observed: FloatArray | None
+) -> FloatArray:
+    """Longest plausible travel time of detection a's target over the segment p -> p + 1: what
+    its speed predicts, or what the segment's tracks took, whichever is longer (in a queue
+    vehicles take many times what their speeds at the sensors predict)."""
     gap = s.positions[np.minimum(p + 1, s.positions.size - 1)] - s.positions[p]
     spread = LONGEST_TRAVEL_SPREADS * model.time_spread[p, 1]
-    return gap * np.exp(model.log_bias[p, 1] + spread) / s.speed[a]
+    predicted = gap * np.exp(model.log_bias[p, 1] + spread) / s.speed[a]
+    return predicted if observed is None else np.maximum(predicted, observed[p])
+
+
+def observed_travel(s: Sensors, chain: IntArray, ids: IntArray) -> FloatArray:
+    """Per segment, the longest travel time its tracks took: the OBSERVED_TRAVEL_QUANTILE of
+    the times of their links across it (`chain` and `ids` as in `track_evidence`), 0 where
+    fewer than OBSERVED_LEAST_LINKS cross it. Inside a queue a link may be a vehicle off, but
+    its time is the queue's."""
+    longest = np.zeros(max(s.positions.size - 1, 1))
+    linked = np.flatnonzero(ids[1:] == ids[:-1])
+    a, b = chain[linked], chain[linked + 1]
+    adjacent = s.sensor[b] == s.sensor[a] + 1
+    following = np.full(s.time.size, -1, dtype=np.int64)
+    following[a[adjacent]] = b[adjacent]
+    following = following[s.order]  # by sensor: a segment's links are one slice, unsorted
+    for p in range(s.positions.size - 1):
+        at = following[s.start[p] : s.start[p + 1]]
+        crossed = at >= 0
+        if np.count_nonzero(crossed) >= OBSERVED_LEAST_LINKS:
+            travel = s.time[at[crossed]] - s.sorted_time[s.start[p] : s.start[p + 1]][crossed]
+            longest[p] = np.quantile(travel, OBSERVED_TRAVEL_QUANTILE)
+    return longest
+
+
+def stored_at_edges(s: Sensors) -> tuple[BoolArray, BoolArray]:
+    """Which detections a queue explains at the batch's edges, by counts alone: vehicles are
+    conserved between two sensors, so where a sensor counted more than the next, at least the
+    surplus was still between them when the batch ended (its last detections, by time, in
+    that number), and where it counted more than the one before, at least its surplus entered
+    before the batch began (its first). A surplus counts where it passes STORED_DEVIATIONS
+    Poisson deviations of the smaller count (a few false alarms or misses are no queue); a
+    sensor that counted more than both neighbours has false alarms to explain rather than a
+    queue, and is not explained so. The two arrays are over every detection."""
+    counts = np.diff(s.start)
+    first = np.zeros(s.time.size, dtype=bool)
+    last = np.zeros(s.time.size, dtype=bool)
+    before = np.r_[np.inf, counts[:-1]]  # no sensor before the first, none after the last
+    after = np.r_[counts[1:], np.inf]
+    with np.errstate(invalid="ignore"):  # inf - inf where a road has one sensor
+        queued_after = counts - after >= STORED_DEVIATIONS * np.sqrt(after)
+        queued_before = counts - before >= STORED_DEVIATIONS * np.sqrt(before)
+    for k in np.flatnonzero(queued_after & (counts <= before)).tolist():
+        last[s.order[s.start[k + 1] - (counts[k] - int(after[k])) : s.start[k + 1]]] = True
+    for k in np.flatnonzero(queued_before & (counts <= after)).tolist():
+        first[s.order[s.start[k] : s.start[k] + counts[k] - int(before[k])]] = True
+    return first, last
 
 
 # Fewer linked detections than this share (of a batch of at least FEW_LINKS_MIN detections)

@@ -269,8 +269,9 @@ class AssignmentParams(AssociatorParams):
         ge=0,
         le=MAX_COST,
         description="Least total saving of a track's links over leaving its detections apart "
-        "(the sum of gate_cost - link cost); weaker tracks are taken for chained false alarms. "
-        "Higher drops more doubtful short tracks; 0 keeps every track.",
+        "(the sum of gate_cost - link cost); a weaker track's detections are judged one by "
+        "one, each a false alarm unless the batch's time window explains it. Higher breaks "
+        "more doubtful short tracks; 0 keeps every track.",
     )
     min_confidence: float = Field(
         default=0.0,
