@@ -12,7 +12,7 @@ import pytest
 
 from roadlink.association import associate
 from roadlink.association.associators.assignment import AssignmentParams
-from roadlink.association.associators.assignment.clocks import Lag
+from roadlink.association.associators.assignment.clocks import Lag, clock_offsets
 from roadlink.association.associators.assignment.sensor_order import (
     in_road_order,
     keeps_time,
@@ -92,4 +92,26 @@ def test_a_pairs_detections_are_exchanged_and_named():
     assert in_road_order(sensor, []) is sensor
     (warning,) = order_warnings(np.array([0.0, 250.0, 500.0]), (1,))
     assert "positions 250 and 500" in warning and "swapped" in warning
-    assert swapped_pairs(np.array([0.0, 100.0]), [np.zeros(60)] * 2, [np.ones(60)] * 2) == []
+    two = swapped_pairs(np.array([0.0, 100.0]), [np.zeros(60)] * 2, [np.ones(60)] * 2)
+    assert two == ([], None)
+
+
+def test_the_lags_of_the_order_as_reported_serve_the_clocks_too():
+    """The clocks' search starts from the lags the order's test measured, where no pair was
+    exchanged and no clock is far off: the same lags, so the same offsets (here the middle
+    sensor of the committed dense traffic 20 s late, set right) as measured afresh."""
+    d = read_detections_csv(DATA / "sumo" / "sumo-dense.csv")
+    middle = np.unique(d.position)[5]
+    late = dataclasses.replace(d, timestamp=d.timestamp + 20.0 * (d.position == middle))
+    positions, sensor = np.unique(late.position, return_inverse=True)
+    order = np.lexsort((late.timestamp, sensor))
+    start = np.searchsorted(sensor[order], np.arange(positions.size + 1))
+    times = [late.timestamp[order[start[k] : start[k + 1]]] for k in range(positions.size)]
+    speeds = [late.velocity[order[start[k] : start[k + 1]]] for k in range(positions.size)]
+    pairs, lags = swapped_pairs(positions, times, speeds)
+    assert pairs == [] and lags is not None and len(lags) == positions.size - 1
+    sorted_time, sorted_speed = late.timestamp[order], late.velocity[order]
+    shared = clock_offsets(positions, sorted_time, sorted_speed, start, lags)
+    afresh = clock_offsets(positions, sorted_time, sorted_speed, start)
+    assert shared.tolist() == afresh.tolist()
+    assert shared[5] == pytest.approx(20.0, abs=0.5)

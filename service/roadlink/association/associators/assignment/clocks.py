@@ -101,10 +101,12 @@ def clock_offsets(
     sorted_time: FloatArray,
     sorted_speed: FloatArray,
     start: IntArray,
+    measured: list[Lag | None] | None = None,
 ) -> FloatArray:
     """Each sensor's clock offset (s; to be taken from its timestamps): 0 where nothing shows
     one. Sensors in road order, each one's detections `sorted_time[start[k]:start[k + 1]]`
-    ascending, with their (floored) speeds.
+    ascending, with their (floored) speeds; `measured`, every segment's lag of these very
+    detections where it was measured already (`sensor_order.swapped_pairs`), else None.
 
     Sensor by sensor, the clearest mirror first (the largest offset), each one set right before
     its neighbours' lags are measured again: a sensor between two others is judged against
@@ -122,7 +124,10 @@ def clock_offsets(
     offsets += far_offsets(positions, road.times, road.speeds)
     for k in np.flatnonzero(offsets).tolist():
         road.times[k] -= offsets[k]
-    lags = road.lags(list(range(n - 1)))
+    if measured is not None and not offsets.any():
+        lags = list(measured)  # set right below, sensor by sensor
+    else:
+        lags = road.lags(list(range(n - 1)))
     for _ in range(n - 2):
         found = {}
         for k in range(1, n - 1):

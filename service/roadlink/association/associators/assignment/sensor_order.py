@@ -26,13 +26,15 @@ KEPT_SHARE = 0.25
 
 def swapped_pairs(
     positions: FloatArray, times: list[FloatArray], speeds: list[FloatArray]
-) -> list[int]:
+) -> tuple[list[int], list[Lag | None] | None]:
     """Each k whose sensors k and k + 1 report each other's vehicles (the pairs apart, in road
-    order). `times[k]` are sensor k's detection times (ascending), `speeds[k]` their speeds."""
+    order), and every segment's lag as the sensors are reported (None where not measured: the
+    clocks' search, which measures the same, takes them). `times[k]` are sensor k's detection
+    times (ascending), `speeds[k]` their speeds."""
     n = positions.size
     # Fewer detections at a sensor and its segments' lags are not measured (`clocks`).
     if n < 3 or min(t.size for t in times) < CLOCK_LEAST_DETECTIONS:
-        return []
+        return [], None
     road = Road(positions, list(times), list(speeds))
     lags = road.lags(list(range(n - 1)))
     pairs: list[int] = []
@@ -45,7 +47,7 @@ def swapped_pairs(
         round_pair = [j for j in (k - 1, k, k + 1) if 0 <= j < n - 1]
         if all(keeps_time(lag) for lag in exchanged.lags(round_pair)):
             pairs.append(k)
-    return pairs
+    return pairs, lags
 
 
 def keeps_time(lag: Lag | None) -> bool:

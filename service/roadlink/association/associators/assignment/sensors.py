@@ -234,15 +234,16 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     )
 
     time = detections.timestamp
-    swapped = swapped_pairs(
+    swapped, lags = swapped_pairs(
         positions,
         [time[order[start[k] : start[k + 1]]] for k in range(positions.size)],
         [speed[order[start[k] : start[k + 1]]] for k in range(positions.size)],
     )
-    if swapped:
+    if swapped:  # the lags measured were those of the sensors as reported
         sensor = in_road_order(sensor, swapped)
         order, start = _by_sensor_and_time(detections, sensor, positions.size)
-    offsets = clock_offsets(positions, time[order], speed[order], start)
+        lags = None
+    offsets = clock_offsets(positions, time[order], speed[order], start, lags)
     if offsets.any():
         time = time - offsets[sensor]
     log_speed = np.log(speed)
