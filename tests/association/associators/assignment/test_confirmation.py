@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from roadlink.association import associate
-from roadlink.association.associators.assignment import AssignmentParams
+from roadlink.association.associators.assignment import AssignmentParams, confirmation
 from roadlink.association.associators.assignment.anchors import Anchors
 from roadlink.association.associators.assignment.confirmation import (
     confirm_targets,
@@ -311,3 +311,18 @@ def test_a_sensor_is_named_only_above_both_neighbours_with_its_extra_reports_unl
     unlinked = np.zeros(520, dtype=np.int64)
     unlinked[160:220] = -1
     assert not noisy_sensor_warnings(arrange(d_queue, AssignmentParams()), unlinked)
+
+
+def test_observed_travel_is_the_same_sorted_at_once_or_segment_by_segment(monkeypatch):
+    d = read_detections_csv((COMMITTED_SUMO / "sumo-queue.csv").read_bytes()).without_labels()
+    s = arrange(d, PARAMS)
+    # Links between each sensor's k-th and the next sensor's k-th detections: a queue's counts.
+    rank = np.arange(len(d)) - np.repeat(s.start[:-1], np.diff(s.start))
+    track = np.empty(len(d), dtype=np.int64)
+    track[s.order] = rank
+    chain = s.by_track(np.arange(len(d)), track)
+    at_once = observed_travel(s, chain, track[chain])
+    monkeypatch.setattr(confirmation, "OBSERVED_AT_ONCE_LINKS", 0)
+    by_segment = observed_travel(s, chain, track[chain])
+    assert np.count_nonzero(at_once) == s.positions.size - 1  # every segment read
+    assert at_once.tolist() == by_segment.tolist()

@@ -29,6 +29,8 @@ from roadlink.association.detections import FloatArray, IntArray
 OBSERVED_TRAVEL_QUANTILE = 0.9
 # ... read where at least this many links cross it.
 OBSERVED_LEAST_LINKS = 5
+# Up to this many links, every segment's are sorted at once; beyond, segment by segment.
+OBSERVED_AT_ONCE_LINKS = 50_000
 # A sensor's surplus over its neighbour's count is a queue's where it passes this many Poisson
 # deviations of that count.
 STORED_DEVIATIONS = 3.0
@@ -68,14 +70,15 @@ def confirm_targets(
     evidence = track_evidence(s, model, params, chain, ids, anchors)
     convincing = (evidence >= params.min_track_evidence) | (sizes == 1)
     long_enough = sizes >= params.min_track_length
-    explained = _window_explains(s, model, observed_travel(s, chain, ids))
+    explained = _window_explains(s, model, chain, ids)
     long_enough[ids[start]] |= explained(chain[start], chain[end])
     good = convincing & long_enough
     keep = chain[good[ids]]
     _, out[keep] = unique_inverse(track[keep])  # np.unique's, quicker on a few
     weak = chain[~convincing[ids]]
-    lone = weak[explained(weak, weak)]
-    out[lone] = out.max(initial=-1) + 1 + np.arange(lone.size)
+    if weak.size:
+        lone = weak[explained(weak, weak)]
+        out[lone] = out.max(initial=-1) + 1 + np.arange(lone.size)
     return out
 
 
@@ -139,16 +142,27 @@ def _level_before(s: Sensors, chain: IntArray, ids: IntArray, linked: IntArray) 
 
 
 def _window_explains(
-    s: Sensors, model: SegmentModel, observed: FloatArray
+    s: Sensors, model: SegmentModel, chain: IntArray, ids: IntArray
 ) -> Callable[[IntArray, IntArray], BoolArray]:
     """Whether the batch's window explains a track from detection `first` to `last` (arrays of
-    them), by the times its segments take (`observed`, as `observed_travel`) or by what a queue
-    holds between its sensors (`stored_at_edges`)."""
+    them), by the times its segments take (what the speeds predict, or what its tracks, `chain`
+    and `ids` as in `track_evidence`, took: `observed_travel`, read only where the speeds
+    leave a track unexplained) or by what a queue holds between its sensors
+    (`stored_at_edges`)."""
     stored_first, stored_last = stored_at_edges(s)
+    observed: FloatArray | None = None
 
     def explained(first: IntArray, last: IntArray) -> BoolArray:
-        starts = starts_explained(s, model, first, observed) | stored_first[first]
-        return starts & (ends_explained(s, model, last, observed) | stored_last[last])
+        nonlocal observed
+        starts = starts_explained(s, model, first) | stored_first[first]
+        ends = ends_explained(s, model, last) | stored_last[last]
+        if (starts & ends).all():
+            return starts & ends
+        if observed is None:
+            observed = observed_travel(s, chain, ids)
+        starts |= starts_explained(s, model, first, observed)
+        ends |= ends_explained(s, model, last, observed)
+        return starts & ends
 
     return explained
 
@@ -200,16 +214,43 @@ def observed_travel(s: Sensors, chain: IntArray, ids: IntArray) -> FloatArray:
     linked = np.flatnonzero(ids[1:] == ids[:-1])
     a, b = chain[linked], chain[linked + 1]
     adjacent = s.sensor[b] == s.sensor[a] + 1
+    a, b = a[adjacent], b[adjacent]
+    counts = np.bincount(s.sensor[a], minlength=longest.size)
+    read = counts >= OBSERVED_LEAST_LINKS
+    if not read.any():
+        return longest
+    if a.size <= OBSERVED_AT_ONCE_LINKS:
+        # Every segment's links sorted at once (a quantile call a segment was most of a
+        # paper-size batch's confirmation).
+        travel = s.time[b] - s.time[a]
+        by_segment = np.lexsort((travel, s.sensor[a]))
+        first = np.cumsum(counts) - counts
+        longest[read] = _linear_quantile(travel[by_segment], first[read], counts[read])
+        return longest
+    # Segment by segment, each one's links a slice of the detections by sensor (at 10^6
+    # detections a sort of every link cost seven times this).
     following = np.full(s.time.size, -1, dtype=np.int64)
-    following[a[adjacent]] = b[adjacent]
-    following = following[s.order]  # by sensor: a segment's links are one slice, unsorted
-    for p in range(s.positions.size - 1):
+    following[a] = b
+    following = following[s.order]
+    for p in np.flatnonzero(read).tolist():
         at = following[s.start[p] : s.start[p + 1]]
         crossed = at >= 0
-        if np.count_nonzero(crossed) >= OBSERVED_LEAST_LINKS:
-            travel = s.time[at[crossed]] - s.sorted_time[s.start[p] : s.start[p + 1]][crossed]
-            longest[p] = np.quantile(travel, OBSERVED_TRAVEL_QUANTILE)
+        travel = s.time[at[crossed]] - s.sorted_time[s.start[p] : s.start[p + 1]][crossed]
+        longest[p] = np.quantile(travel, OBSERVED_TRAVEL_QUANTILE)
     return longest
+
+
+def _linear_quantile(values: FloatArray, first: IntArray, counts: IntArray) -> FloatArray:
+    """OBSERVED_TRAVEL_QUANTILE of each run `values[first:first + count]` (sorted), as
+    np.quantile's default (linear) method makes it."""
+    at = (counts - 1) * OBSERVED_TRAVEL_QUANTILE
+    below = np.floor(at).astype(np.int64)
+    share = at - below
+    low = values[first + below]
+    high = values[first + np.minimum(below + 1, counts - 1)]
+    step = high - low
+    # numpy's lerp: from the nearer end, so that a share of 1 gives the upper value exactly.
+    return np.where(share >= 0.5, high - step * (1 - share), low + step * share)
 
 
 def stored_at_edges(s: Sensors) -> tuple[BoolArray, BoolArray]:
