@@ -265,15 +265,18 @@ def stored_at_edges(s: Sensors) -> tuple[BoolArray, BoolArray]:
     counts = np.diff(s.start)
     first = np.zeros(s.time.size, dtype=bool)
     last = np.zeros(s.time.size, dtype=bool)
-    before = np.r_[np.inf, counts[:-1]]  # no sensor before the first, none after the last
-    after = np.r_[counts[1:], np.inf]
-    with np.errstate(invalid="ignore"):  # inf - inf where a road has one sensor
-        queued_after = counts - after >= STORED_DEVIATIONS * np.sqrt(after)
-        queued_before = counts - before >= STORED_DEVIATIONS * np.sqrt(before)
-    for k in np.flatnonzero(queued_after & (counts <= before)).tolist():
-        last[s.order[s.start[k + 1] - (counts[k] - int(after[k])) : s.start[k + 1]]] = True
-    for k in np.flatnonzero(queued_before & (counts <= after)).tolist():
-        first[s.order[s.start[k] : s.start[k] + counts[k] - int(before[k])]] = True
+    # Segment k joins sensors k and k + 1: the upstream one's surplus is stored at the end, the
+    # downstream one's entered before the start.
+    near, far = counts[:-1], counts[1:]
+    root = STORED_DEVIATIONS * np.sqrt(counts)
+    stored_at_end = near - far >= root[1:]
+    stored_at_end[1:] &= near[1:] <= counts[:-2]  # not more than the sensor before
+    entered_before = far - near >= root[:-1]
+    entered_before[:-1] &= far[:-1] <= counts[2:]  # nor more than the one after
+    for k in np.flatnonzero(stored_at_end).tolist():
+        last[s.order[s.start[k + 1] - int(near[k] - far[k]) : s.start[k + 1]]] = True
+    for k in (np.flatnonzero(entered_before) + 1).tolist():
+        first[s.order[s.start[k] : s.start[k] + int(counts[k] - counts[k - 1])]] = True
     return first, last
 
 
