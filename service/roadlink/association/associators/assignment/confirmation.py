@@ -71,7 +71,8 @@ def confirm_targets(
     convincing = (evidence >= params.min_track_evidence) | (sizes == 1)
     long_enough = sizes >= params.min_track_length
     explained = _window_explains(s, model, chain, ids)
-    long_enough[ids[start]] |= explained(chain[start], chain[end])
+    short = ~long_enough[ids[start]]  # only these need the window to explain them
+    long_enough[ids[start][short]] = explained(chain[start][short], chain[end][short])
     good = convincing & long_enough
     keep = chain[good[ids]]
     _, out[keep] = unique_inverse(track[keep])  # np.unique's, quicker on a few
