@@ -370,7 +370,7 @@ MEASURED_ASSIGNMENT_ACCURACY = {
     # Queues, where `assignment` is weakest: the naive `chain` of benchmarks/references.py scores
     # 43 % on both (seeds 0-4), and given the true travel-time curves time and speed reach about
     # 55 % (benchmarks/queue_ceiling.py).
-    "sumo-queue": 0.387,
+    "sumo-queue": 0.425,
     "sumo-stopgo": 0.405,
     # Traffic lights: over a segment with one, a vehicle's travel time is set by when it came
     # (green, or how far into the red), not by its speed; the naive chain scores 57.6 % here.

@@ -12,6 +12,7 @@ from roadlink.association.associators.assignment.arrays import filled
 from roadlink.association.associators.assignment.model import SegmentModel
 from roadlink.association.associators.assignment.params import FASTEST_SHARE, AssignmentParams
 from roadlink.association.associators.assignment.sensors import Sensors, travel_time
+from roadlink.association.associators.assignment.silences import over_silence
 from roadlink.association.detections import FloatArray, IntArray
 
 BoolArray = npt.NDArray[np.bool_]
@@ -287,14 +288,12 @@ def _within_gate_chunk(
     within = model.time_tails.within(r_time, d.span.repeat(count), params.miss_cost, gate)
     keep = within.nonzero()[0]  # once: quicker than the mask for each array (`Pairs.take`)
     kept = which[keep]
-    return Pairs(
-        d.a[kept],
-        s.order[at[keep]],
-        r_time[keep],
-        ratio[keep],
-        d.speed_spread[kept],
-        d.span[kept],
-    )
+    b = s.order[at[keep]]
+    span = d.span[kept]
+    if span.size and span.max() > 1:
+        heard = ~over_silence(s, d.a[kept], b, span)
+        keep, kept, b, span = keep[heard], kept[heard], b[heard], span[heard]
+    return Pairs(d.a[kept], b, r_time[keep], ratio[keep], d.speed_spread[kept], span)
 
 
 def _arrival_window(

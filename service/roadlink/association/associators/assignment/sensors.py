@@ -116,6 +116,14 @@ class Sensors:
         return typical
 
     @cached_property
+    def silent_gaps(self) -> BoolArray:
+        """Per place in `order`: whether its sensor was silent since its report before
+        (`silences.silent_gaps`)."""
+        from roadlink.association.associators.assignment.silences import silent_gaps
+
+        return silent_gaps(self)
+
+    @cached_property
     def slowest_speed(self) -> FloatArray:
         """The slowest (floored) speed measured at each sensor."""
         result: FloatArray = np.minimum.reduceat(self.speed[self.order], self.start[:-1])
