@@ -123,19 +123,22 @@ def load_case(
     return detections
 
 
-CLOCK = re.compile(r"(late|early|spread)(\d+(?:\.\d+)?)(first|last)?")
+CLOCK = re.compile(r"(late|early|spread|step)(\d+(?:\.\d+)?)(first|last)?")
 
 
 def with_clock(detections: Detections, clock: str | None, seed: int) -> Detections:
     """The case as sensors whose clocks are off would report it (`--clock`): `lateS` / `earlyS`
     shift the middle sensor's timestamps by S seconds (`lateSfirst`, `lateSlast`: the first or
-    last sensor's), `spreadS` every sensor's by a normal draw of S seconds (std) from `seed`;
-    None leaves the case as it is."""
+    last sensor's), `stepS` those after the batch's middle time alone (a clock that jumped S
+    seconds late while it reported), `spreadS` every sensor's by a normal draw of S seconds
+    (std) from `seed`; None leaves the case as it is."""
     if clock is None:
         return detections
     match = CLOCK.fullmatch(clock)
     if match is None:
-        raise ValueError(f"--clock: expected lateS, earlyS or spreadS (S seconds), got {clock!r}")
+        raise ValueError(
+            f"--clock: expected lateS, earlyS, stepS or spreadS (S seconds), got {clock!r}"
+        )
     kind, seconds, which = match.group(1), float(match.group(2)), match.group(3)
     positions = np.unique(detections.position)
     if kind == "spread":
@@ -145,15 +148,19 @@ def with_clock(detections: Detections, clock: str | None, seed: int) -> Detectio
     else:
         offsets = np.zeros(positions.size)
         sensor = {"first": 0, "last": -1, None: positions.size // 2}[which]
-        offsets[sensor] = seconds if kind == "late" else -seconds
-    shifted = detections.timestamp + offsets[np.searchsorted(positions, detections.position)]
-    return dataclasses.replace(detections, timestamp=shifted)
+        offsets[sensor] = -seconds if kind == "early" else seconds
+    shift = offsets[np.searchsorted(positions, detections.position)]
+    if kind == "step":
+        shift = np.where(detections.timestamp > np.median(detections.timestamp), shift, 0.0)
+    return dataclasses.replace(detections, timestamp=detections.timestamp + shift)
 
 
 def clock_option(value: str) -> str:
     """`--clock`'s value, checked before any case is simulated."""
     if CLOCK.fullmatch(value) is None:
-        raise argparse.ArgumentTypeError(f"expected lateS, earlyS or spreadS (S seconds): {value}")
+        raise argparse.ArgumentTypeError(
+            f"expected lateS, earlyS, stepS or spreadS (S seconds): {value}"
+        )
     return value
 
 
@@ -303,7 +310,8 @@ def main() -> None:
         "--clock",
         type=clock_option,
         help="Sensors' clocks off: lateS, earlyS (the middle sensor, S seconds; lateSfirst, "
-        "lateSlast: the first or last) or spreadS (every sensor, S seconds std).",
+        "lateSlast: the first or last), stepS (the middle sensor S seconds late from the "
+        "batch's middle time on) or spreadS (every sensor, S seconds std).",
     )
     parser.add_argument(
         "--quiet",

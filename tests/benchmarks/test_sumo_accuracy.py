@@ -90,6 +90,15 @@ def test_a_late_or_early_clock_shifts_the_middle_sensor_alone_and_a_spread_every
         bench.with_clock(d, "spread1last", seed=0)
 
 
+def test_a_clock_step_shifts_the_middle_sensor_after_the_batch_middle_time_alone():
+    # Times 0-9, median 4.5: the middle sensor's reports at 4 and 5 s; only the one at 5 s moves.
+    d = Detections.from_columns(
+        np.repeat([0.0, 100.0, 200.0, 300.0, 400.0], 2), np.full(10, 20.0), np.arange(10.0)
+    )
+    step = bench.with_clock(d, "step20", seed=0).timestamp - d.timestamp
+    np.testing.assert_array_equal(step, np.where((d.position == 200) & (d.timestamp > 4.5), 20, 0))
+
+
 def test_a_quiet_middle_sensor_keeps_its_first_or_last_reports_alone():
     # Five sensors with four reports each; the middle one's come at 3, 2, 1, 0 s (unordered).
     d = Detections.from_columns(

@@ -146,9 +146,12 @@ def clock_offsets(
     return offsets
 
 
-def clock_warnings(positions: FloatArray, offsets: FloatArray | None) -> list[str]:
+def clock_warnings(
+    positions: FloatArray, offsets: FloatArray | None, stepped: frozenset[int] = frozenset()
+) -> list[str]:
     """A sentence for each sensor whose clock was set right, for whoever keeps the detector's
-    own clock (the association is not affected)."""
+    own clock (the association is not affected); none for the sensors whose clocks `stepped`,
+    whose sentences `clock_steps.step_warnings` makes."""
     if offsets is None:
         return []
     return [
@@ -157,6 +160,7 @@ def clock_warnings(positions: FloatArray, offsets: FloatArray | None) -> list[st
         "either side of it: its clock is off (or its position is); its times were set right "
         "for the association"
         for k in np.flatnonzero(offsets)
+        if k not in stepped
     ]
 
 
@@ -187,6 +191,8 @@ class Road:
     positions: FloatArray
     times: list[FloatArray]
     speeds: list[FloatArray]
+    # A segment with fewer detections at either end is not searched.
+    least_detections: int = CLOCK_LEAST_DETECTIONS
 
     def lags(self, segments: list[int]) -> list[Lag | None]:
         """The peak of each segment's lags (far time - near time - kinematic travel time) over
@@ -247,7 +253,7 @@ class Road:
         """Segment k's sampled pairs, as `_pairs` and `confirms` read them."""
         near_time, near_speed = self.times[k], self.speeds[k]
         far_time, far_speed = self.times[k + 1], self.speeds[k + 1]
-        if min(near_time.size, far_time.size) < CLOCK_LEAST_DETECTIONS:
+        if min(near_time.size, far_time.size) < self.least_detections:
             return None
         gap = float(self.positions[k + 1] - self.positions[k])
         typical = float(travel_time(gap, np.median(near_speed), np.median(far_speed)))

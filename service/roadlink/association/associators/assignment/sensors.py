@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -16,6 +17,9 @@ from roadlink.association.associators.assignment.params import (
 )
 from roadlink.association.associators.assignment.robust import median
 from roadlink.association.detections import Detections, FloatArray, IntArray
+
+if TYPE_CHECKING:
+    from roadlink.association.associators.assignment.clock_steps import ClockStep
 
 ComplexArray = npt.NDArray[np.complex128]
 BoolArray = npt.NDArray[np.bool_]
@@ -65,6 +69,7 @@ class Sensors:
     clock_offsets: FloatArray | None = None  # seconds taken from each sensor's times (`clocks`)
     speed_floor: float = 0.0  # what `speed` is floored at: a speed there was read lower
     swapped: tuple[int, ...] = ()  # each k whose sensors k, k + 1 were exchanged (`sensor_order`)
+    clock_steps: tuple[ClockStep, ...] = ()  # clocks that stepped while reporting (`clock_steps`)
     _reaching: dict[int, tuple[IntArray, IntArray]] = field(default_factory=dict, repr=False)
     _starts: list[int] = field(default_factory=list, repr=False)  # `start` as Python ints
 
@@ -114,6 +119,11 @@ class Sensors:
         busy = ~sparse
         typical[sparse] = np.interp(self.positions[sparse], self.positions[busy], typical[busy])
         return typical
+
+    @property
+    def stepped_sensors(self) -> frozenset[int]:
+        """The sensors whose clocks stepped while they reported (`clock_steps`)."""
+        return frozenset(step.sensor for step in self.clock_steps)
 
     @cached_property
     def silent_gaps(self) -> BoolArray:
@@ -229,12 +239,15 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     """Index the detections by sensor and time, with speeds floored (never divide by ~0)."""
     positions, sensor = np.unique(detections.position, return_inverse=True)
     sensor = sensor.astype(np.int64)
-    order, start = _by_sensor_and_time(detections, sensor, positions.size)
+    order, start = _by_sensor_and_time(
+        detections.timestamp, detections.velocity, sensor, positions.size
+    )
     floor = params.velocity_floor * float(median(detections.velocity))
     speed = np.maximum(detections.velocity, floor)
     # Where two sensors' positions are swapped, their detections are taken the other way
     # round; where a sensor's clock is off, its times are set right: the tracks are built on
     # them. (Both measure lags against this module's `travel_time`, hence imported here.)
+    from roadlink.association.associators.assignment.clock_steps import clock_steps
     from roadlink.association.associators.assignment.clocks import clock_offsets
     from roadlink.association.associators.assignment.sensor_order import (
         in_road_order,
@@ -249,11 +262,25 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     )
     if swapped:  # the lags measured were those of the sensors as reported
         sensor = in_road_order(sensor, swapped)
-        order, start = _by_sensor_and_time(detections, sensor, positions.size)
+        order, start = _by_sensor_and_time(
+            detections.timestamp, detections.velocity, sensor, positions.size
+        )
         lags = None
     offsets = clock_offsets(positions, time[order], speed[order], start, lags)
     if offsets.any():
         time = time - offsets[sensor]
+    steps = clock_steps(
+        positions,
+        [time[order[start[k] : start[k + 1]]] for k in range(positions.size)],
+        [speed[order[start[k] : start[k + 1]]] for k in range(positions.size)],
+    )
+    if steps:
+        time = time.copy()
+        for step in steps:
+            stepped = order[start[step.sensor] : start[step.sensor + 1]]
+            time[stepped] -= step.before
+            time[stepped[step.later]] -= step.after - step.before
+        order, start = _by_sensor_and_time(time, detections.velocity, sensor, positions.size)
     log_speed = np.log(speed)
     typical = np.array(
         [median(log_speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]
@@ -276,15 +303,16 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         offsets,
         floor,
         tuple(swapped),
+        tuple(steps),
     )
 
 
 def _by_sensor_and_time(
-    detections: Detections, sensor: IntArray, n_sensors: int
+    time: FloatArray, velocity: FloatArray, sensor: IntArray, n_sensors: int
 ) -> tuple[IntArray, IntArray]:
     """The detections' order by sensor, then time, and where each sensor's run starts. Ties
     broken by speed, then input order, so a shuffled input gives the same grouping."""
-    order = np.lexsort((detections.velocity, detections.timestamp, sensor)).astype(np.int64)
+    order = np.lexsort((velocity, time, sensor)).astype(np.int64)
     start = np.searchsorted(sensor[order], np.arange(n_sensors + 1)).astype(np.int64)
     return order, start
 
