@@ -72,6 +72,19 @@ def test_a_step_of_the_middle_sensors_clock_is_found_where_it_happened(seconds):
     assert (late != (d.timestamp[middle] != original)).sum() <= (3 if seconds > 0 else 12)
 
 
+@pytest.mark.parametrize(("case", "seconds"), [("sumo-dense", 3600.0), ("sumo-freeflow", 120.0)])
+def test_a_step_of_minutes_or_hours_is_set_right_too(case, seconds):
+    # Beyond the lags' minute: found by each half's correlations (`far_clocks`), or, where the
+    # whole batch was set right by the late half's offset, by the early half fitting its
+    # neighbours as reported.
+    d = stepped(case, seconds)
+    s = arrange(d.without_labels(), PARAMS)
+    assert s.stepped_sensors == {MIDDLE}
+    on_time = read_detections_csv(SUMO / f"{case}.csv").timestamp
+    assert np.median(np.abs(s.time - on_time)) < 0.01
+    assert np.mean(np.abs(s.time - on_time) < 1.0) > 0.99
+
+
 @pytest.mark.parametrize(
     "case", ["sumo-dense", "sumo-freeflow", "sumo-bottleneck", "sumo-queue", "sumo-stopgo"]
 )

@@ -8,17 +8,21 @@ offset a sensor for the whole batch, and a step left either half wrong (SUMO's d
 motorway, the middle sensor stepping 2-60 s late half-way: 84-86 % of the detections right
 against 92 % on time; free flow 88-94 % against 98 %).
 
-So once every sensor's clock is set right as a whole, the batch is cut at its middle time and
-each half's segment lags are measured as `clocks` measures them (`Road.lags`, both halves'
-segments at once): a sensor steps where one half is on time and the other shows an offset, its
+So once every sensor's clock is set right as a whole, three things are looked for. A sensor set
+right as a whole may have been set by one part's offset: it stepped where its other part fits
+its neighbours as reported. Then the batch is cut at its middle time and each half searched: a
+step of minutes or hours where each half's correlations (`far_clocks.far_offsets`) find a far
+offset in one half and none in the other; a smaller one where one half's segment lags
+(`Road.lags`, both halves' segments at once) are on time and the other's show an offset, its
 two segments' lags mirroring it as `clocks` asks of one (a peak 7 Poisson deviations high, and
 30 % of a travel time or confirmed by matching), or one segment's alone where matching confirms
 it (`_offset`). Where in the batch it stepped is where its detections stop fitting their
 neighbours at the first offset and start fitting them at the second (`stepped_places`): each
 detection's best pair at the sensors either side, where its own speed says it would be, is
 scored under both offsets, and the step falls where the running sum of the differences is
-lowest. A step is kept where the detections fit their neighbours with it (`_fits`), and looked
-for only where traffic flows at the sensor and both neighbours.
+lowest. A step is kept where the detections fit their neighbours with it (`_fits`), leaving
+STEP_LEAST_SIDE of them on either side, and looked for only where traffic flows at the sensor
+and both neighbours.
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from roadlink.association.associators.assignment.clocks import (
+    CLOCK_BIN_LEAST,
+    CLOCK_BIN_SHARE,
     CLOCK_CONFIRM_GATE,
     CLOCK_CONFIRM_SAVING,
     CLOCK_CONFIRM_SPEED,
@@ -39,6 +45,8 @@ from roadlink.association.associators.assignment.clocks import (
     Road,
     clear,
 )
+from roadlink.association.associators.assignment.far_clocks import far_offsets
+from roadlink.association.associators.assignment.sensors import travel_time
 from roadlink.association.detections import FloatArray, IntArray
 
 # A detection's neighbours are looked for within this many of the lags' bins of where its speed
@@ -49,6 +57,10 @@ STEP_FIT_BINS = 3.0
 # waves, and a half's lags mirrored an "offset" of one travel time (SUMO, faulty loops in a
 # queue at 2.7 m/s: a step of 91 s set at a sensor whose clock kept time, 84 -> 76 %).
 FLOWING_SHARE = 0.5
+# A step leaves at least this many of the sensor's detections on either side (what a half's lags
+# need at each end of a segment): nearer the batch's edges a few detections that fit poorly,
+# their partners outside the window, looked like a step from a clock set right as a whole.
+STEP_LEAST_SIDE = CLOCK_LEAST_DETECTIONS // 2
 # A step is taken where the detections fit their neighbours with it within this share of what
 # leaving each alone at both neighbours costs, on average (2 half-gates: CLOCK_CONFIRM_GATE).
 # Steps set on SUMO's dense and free-flowing traffic fit within 0.1-0.2 of it; a road numbered
@@ -71,51 +83,119 @@ class ClockStep:
 
 
 def clock_steps(
-    positions: FloatArray, times: list[FloatArray], speeds: list[FloatArray]
+    positions: FloatArray,
+    times: list[FloatArray],
+    speeds: list[FloatArray],
+    set_right: FloatArray | None = None,
 ) -> list[ClockStep]:
     """The sensors whose clocks stepped part-way through the batch, each sensor's detection
-    times (ascending, every clock already set right as a whole) and speeds given in road
-    order."""
+    times (ascending, every clock already set right as a whole: by `set_right` seconds, where
+    given) and speeds given in road order."""
     n = positions.size
     if n < 3 or max(t.size for t in times) < CLOCK_LEAST_DETECTIONS:
         return []
-    halves = _halves(positions, times, speeds)
+    parts = _parts(times)
+    halves = _halves(positions, times, speeds, parts)
+    far = _far_steps(positions, times, speeds, parts)
     typical = np.array([np.median(v) if v.size else 0.0 for v in speeds])
     flowing = typical >= FLOWING_SHARE * typical.max()
-    found = {}
-    for k in range(1, n - 1):
-        if flowing[k - 1 : k + 2].all():
-            shown = _step_offsets(halves, k)
-            if shown is not None:
-                found[k] = shown
     whole = Road(positions, times, speeds)
-    steps = []
-    for k, (before, after, width, alone) in found.items():
-        # A step one segment's lag alone showed may be its neighbour's, across that segment.
-        if not (alone and (k - 1 in found or k + 1 in found)):
-            step = _placed(whole, k, before, after, width)
+    steps, found = [], {}
+    for k in range(1, n - 1):
+        if not flowing[k - 1 : k + 2].all():
+            continue
+        if set_right is not None and set_right[k] != 0.0:
+            step = _set_right_in_part(whole, speeds, k, float(set_right[k]))
             if step is not None:
                 steps.append(step)
-    return steps
+                continue
+        shown = far.get(k) or _step_offsets(halves, k)
+        if shown is not None:
+            found[k] = shown
+    stepped = {step.sensor for step in steps}
+    for k, (before, after, width, alone) in found.items():
+        # A step one segment's lag alone showed may be its neighbour's, across that segment.
+        if alone and (stepped | found.keys()) & {k - 1, k + 1}:
+            continue
+        step = _placed(whole, k, before, after, width)
+        if step is not None:
+            steps.append(step)
+    return sorted(steps, key=lambda step: step.sensor)
+
+
+def _set_right_in_part(
+    road: Road, speeds: list[FloatArray], k: int, set_right: float
+) -> ClockStep | None:
+    """Sensor k's step, where its clock was set right as a whole by `set_right` seconds, the
+    offset of one part of the batch (the lags' highest peak, or the correlation's, was that
+    part's), and its other part, before or after, fits its neighbours as reported."""
+    width = _bin_width(road.positions, speeds, k)
+    for before, after in ((-set_right, 0.0), (0.0, -set_right)):
+        step = _placed(road, k, before, after, width)
+        if step is not None:
+            return step
+    return None
+
+
+def _bin_width(positions: FloatArray, speeds: list[FloatArray], k: int) -> float:
+    """The lags' bin width (`clocks.CLOCK_BIN_SHARE` of the typical travel time, at least
+    `clocks.CLOCK_BIN_LEAST`) of sensor k's segments, their mean length at its median speed."""
+    gap = float(positions[min(k + 1, positions.size - 1)] - positions[max(k - 1, 0)]) / 2
+    median_speed = float(np.median(speeds[k]))
+    typical = float(travel_time(gap, median_speed, median_speed))
+    return max(CLOCK_BIN_SHARE * typical, CLOCK_BIN_LEAST)
+
+
+def _parts(times: list[FloatArray]) -> list[list[slice]]:
+    """The batch cut at its middle time: each sensor's detections in either half."""
+    middle = float(np.median(np.concatenate(times)))
+    cut = [int(np.searchsorted(t, middle)) for t in times]
+    return [[slice(None, c) for c in cut], [slice(c, None) for c in cut]]
 
 
 def _halves(
-    positions: FloatArray, times: list[FloatArray], speeds: list[FloatArray]
+    positions: FloatArray,
+    times: list[FloatArray],
+    speeds: list[FloatArray],
+    parts: list[list[slice]],
 ) -> list[tuple[Road, list[Lag | None]]]:
-    """The batch cut at its middle time: each half's road (its segments searched from half the
-    detections a whole batch's need) and every segment's lag in it."""
-    middle = float(np.median(np.concatenate(times)))
-    cut = [int(np.searchsorted(t, middle)) for t in times]
+    """Each half's road (its segments searched from half the detections a whole batch's need)
+    and every segment's lag in it."""
     halves = []
-    for part in ([slice(None, c) for c in cut], [slice(c, None) for c in cut]):
+    for part in parts:
         half = Road(
             positions,
             [t[p] for t, p in zip(times, part, strict=True)],
             [v[p] for v, p in zip(speeds, part, strict=True)],
-            CLOCK_LEAST_DETECTIONS // 2,
+            STEP_LEAST_SIDE,
         )
         halves.append((half, half.lags(list(range(positions.size - 1)))))
     return halves
+
+
+def _far_steps(
+    positions: FloatArray,
+    times: list[FloatArray],
+    speeds: list[FloatArray],
+    parts: list[list[slice]],
+) -> dict[int, tuple[float, float, float, bool]]:
+    """The sensors whose clocks stepped by minutes or hours (beyond the lags' reach: daylight
+    saving time, a clock taken again by hand), each with `_step_offsets`'s numbers: a far
+    offset (`far_clocks.far_offsets`) in one half and none in the other."""
+    if any(t[p].size == 0 for part in parts for t, p in zip(times, part, strict=True)):
+        return {}
+    first, second = (
+        far_offsets(
+            positions,
+            [t[p] for t, p in zip(times, part, strict=True)],
+            [v[p] for v, p in zip(speeds, part, strict=True)],
+        )
+        for part in parts
+    )
+    return {
+        k: (float(first[k]), float(second[k]), _bin_width(positions, speeds, k), False)
+        for k in np.flatnonzero((first == 0.0) != (second == 0.0)).tolist()
+    }
 
 
 def _step_offsets(
@@ -159,7 +239,8 @@ def _placed(road: Road, k: int, before: float, after: float, width: float) -> Cl
     else:
         before = _best_offset(road, k, before, width, np.setdiff1d(np.arange(size), later))
     later = stepped_places(road, k, before, after, width)
-    if 0 < later.size < size and _fits(road, k, before, after, width, later):
+    fits = STEP_LEAST_SIDE <= later.size <= size - STEP_LEAST_SIDE
+    if fits and _fits(road, k, before, after, width, later):
         return ClockStep(k, float(road.times[k][later[0]]), before, after, later)
     return None
 

@@ -273,6 +273,7 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         positions,
         [time[order[start[k] : start[k + 1]]] for k in range(positions.size)],
         [speed[order[start[k] : start[k + 1]]] for k in range(positions.size)],
+        offsets,
     )
     if steps:
         time = time.copy()
