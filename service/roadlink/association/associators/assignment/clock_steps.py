@@ -47,17 +47,18 @@ from roadlink.association.associators.assignment.clocks import (
     clear,
 )
 from roadlink.association.associators.assignment.far_clocks import far_offsets
+from roadlink.association.associators.assignment.params import FLOWING_SHARE
 from roadlink.association.associators.assignment.sensors import travel_time
 from roadlink.association.detections import FloatArray, IntArray
 
 # A detection's neighbours are looked for within this many of the lags' bins of where its speed
 # says they would be.
 STEP_FIT_BINS = 3.0
-# Steps are looked for only where the sensor and both its neighbours have a median speed of at
-# least this share of the fastest sensor's: in a crawl vehicles pass neighbouring sensors in
-# waves, and a half's lags mirrored an "offset" of one travel time (SUMO, faulty loops in a
-# queue at 2.7 m/s: a step of 91 s set at a sensor whose clock kept time, 84 -> 76 %).
-FLOWING_SHARE = 0.5
+# Steps are looked for only where traffic flows at the sensor and both its neighbours (a
+# median speed of at least `params.FLOWING_SHARE` of the fastest sensor's): in a crawl vehicles
+# pass neighbouring sensors in waves, and a half's lags mirrored an "offset" of one travel time
+# (SUMO, faulty loops in a queue at 2.7 m/s: a step of 91 s set at a sensor whose clock kept
+# time, 84 -> 76 %).
 # A step leaves at least this many of the sensor's detections on either side (what a half's lags
 # need at each end of a segment): nearer the batch's edges a few detections that fit poorly,
 # their partners outside the window, looked like a step from a clock set right as a whole.
@@ -239,20 +240,21 @@ def _placed(road: Road, k: int, before: float, after: float, width: float) -> Cl
         after = _best_offset(road, k, after, width, later)
     else:
         before = _best_offset(road, k, before, width, np.setdiff1d(np.arange(size), later))
-    later = stepped_places(road, k, before, after, width)
+    misfit = _misfits(road, k, before, after, width)
+    later = _split(road.times[k], before, after, misfit)
     fits = STEP_LEAST_SIDE <= later.size <= size - STEP_LEAST_SIDE
-    if fits and _fits(road, k, before, after, width, later):
+    if fits and _fits(misfit, later):
         return ClockStep(k, float(road.times[k][later[0]]), before, after, later)
     return None
 
 
-def _fits(road: Road, k: int, before: float, after: float, width: float, later: IntArray) -> bool:
-    """Whether sensor k's detections fit their neighbours with the step: each side of it better
+def _fits(misfit: tuple[FloatArray, FloatArray], later: IntArray) -> bool:
+    """Whether a sensor's detections, with their `misfit`s at the offsets before and after a
+    step (`_misfits`), fit their neighbours with the step stamping `later`: each side better
     at its own offset than at the other's by CLOCK_CONFIRM_SAVING a detection (as `clocks`
     asks of a small offset), and all of them fitting, on average, within STEP_FIT_SHARE of
     what leaving each alone at both neighbours costs (a road whose lags something else moves,
     numbered against the traffic, fits neither way)."""
-    misfit = [_misfit(road, k, offset, width) for offset in (before, after)]
     earlier = np.ones(misfit[0].size, dtype=bool)
     earlier[later] = False
     saved_before = float(np.mean(misfit[1][earlier] - misfit[0][earlier]))
@@ -296,12 +298,24 @@ def stepped_places(road: Road, k: int, before: float, after: float, width: float
     their neighbours better at `after` than at `before` (`_misfit`). A clock that stepped back
     stamped some of the passages after the step earlier than some before it: within that
     overlap each detection takes the offset it fits better."""
-    misfit = [_misfit(road, k, offset, width) for offset in (before, after)]
+    return _split(road.times[k], before, after, _misfits(road, k, before, after, width))
+
+
+def _misfits(
+    road: Road, k: int, before: float, after: float, width: float
+) -> tuple[FloatArray, FloatArray]:
+    """Sensor k's detections' misfits at `before` and at `after` (`_misfit`)."""
+    return _misfit(road, k, before, width), _misfit(road, k, after, width)
+
+
+def _split(
+    time: FloatArray, before: float, after: float, misfit: tuple[FloatArray, FloatArray]
+) -> IntArray:
+    """`stepped_places` of a sensor's detection `time`s, from their `misfit`s (`_misfits`)."""
     gain = np.concatenate([[0.0], np.cumsum(misfit[1] - misfit[0])])
     # Detections before the place keep `before`, the rest take `after`: the total misfit is
     # the before-misfits' sum plus gain[-1] - gain[place], lowest where gain[place] is highest.
     place = int(np.argmax(gain))
-    time = road.times[k]
     later = np.arange(time.size) >= place
     if after < before and place < time.size:
         overlap = np.abs(time - time[place]) <= before - after

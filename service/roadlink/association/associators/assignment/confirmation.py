@@ -17,7 +17,7 @@ from roadlink.association.associators.assignment.params import (
     LONGEST_TRAVEL_SPREADS,
     AssignmentParams,
 )
-from roadlink.association.associators.assignment.sensors import Sensors
+from roadlink.association.associators.assignment.sensors import Sensors, arrival_keys_of
 from roadlink.association.associators.assignment.tracks import (
     BoolArray,
     detection_level,
@@ -346,9 +346,7 @@ def _nearest_error(
 ) -> FloatArray:
     """How far each `time` lies from the nearest arrival at its `sensor` (inf: none there), among
     the arrivals as (sensor, time) (`Sensors.arrival_keys`)."""
-    wanted = np.empty(time.size, dtype=np.complex128)
-    wanted.real, wanted.imag = sensor, time
-    at = keys.searchsorted(wanted)
+    at = keys.searchsorted(arrival_keys_of(sensor, time))
     error = np.full(time.size, np.inf)
     for j in (np.maximum(at - 1, 0), np.minimum(at, keys.size - 1)):
         there = keys.real[j] == sensor

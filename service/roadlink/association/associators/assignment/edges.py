@@ -29,7 +29,11 @@ import numpy.typing as npt
 
 from roadlink.association.associators.assignment.gating import Pairs
 from roadlink.association.associators.assignment.model import SegmentModel
-from roadlink.association.associators.assignment.sensors import Sensors, travel_time
+from roadlink.association.associators.assignment.sensors import (
+    Sensors,
+    arrival_keys_of,
+    travel_time,
+)
 from roadlink.association.detections import FloatArray, IntArray
 
 BoolArray = npt.NDArray[np.bool_]
@@ -178,9 +182,7 @@ def _near_at_once(s: Sensors, sensors: range, bound: FloatArray, before: bool) -
     if keys is None or np.isnan(bound).any():
         return None
     q = np.arange(sensors.start, sensors.stop)
-    ends = np.empty(q.size, dtype=np.complex128)
-    ends.real = q
-    ends.imag = bound
+    ends = arrival_keys_of(q, bound)
     if before:
         lo, hi = s.start[q], keys.searchsorted(ends, side="left")
     else:

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from roadlink.association.associators.assignment.params import FLOWING_SHARE
 from roadlink.association.associators.assignment.sensors import Sensors
 from roadlink.association.detections import FloatArray, IntArray
 
@@ -39,10 +40,9 @@ MIN_EXCESS = 5
 # The typical share is never taken below this (a road with no misses, false alarms or wrong
 # links would have none, and any end would then stand out).
 MIN_TYPICAL_SHARE = 0.01
-# Traffic flows at a sensor where its SLOW_QUANTILE of speeds is at least FLOWING of the road's
-# fastest median speed.
+# Traffic flows at a sensor where its SLOW_QUANTILE of speeds is at least `params.FLOWING_SHARE`
+# of the road's fastest median speed.
 SLOW_QUANTILE = 0.1
-FLOWING = 0.5
 # Sensors with fewer counted detections than this say nothing of their share.
 MIN_COUNTED = 20
 # A detection is counted only where its window cost (`edges.WindowEdges`) is below this: its
@@ -127,10 +127,10 @@ def _between_linked(s: Sensors, first: BoolArray, last: BoolArray) -> BoolArray:
 
 
 def _flowing(s: Sensors) -> BoolArray:
-    """Whether traffic flows at each sensor: its slowest tenth of speeds at least FLOWING of
+    """Whether traffic flows at each sensor: its slowest tenth of speeds at least FLOWING_SHARE of
     the road's fastest median. Where it does not, vehicles are stored between the sensors (a
     queue grows, a crawl outlasts the batch) and their counts need not match."""
-    flowing: BoolArray = slow_speeds(s) >= FLOWING * float(s.median_speed.max())
+    flowing: BoolArray = slow_speeds(s) >= FLOWING_SHARE * float(s.median_speed.max())
     return flowing
 
 

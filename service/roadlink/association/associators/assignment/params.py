@@ -51,6 +51,11 @@ PRIOR_WEAK_SUPPORT = 1.0
 PRIOR_TEST_SAMPLE = 40
 PRIOR_KINEMATIC_BUMP = 1.5
 PRIOR_KINEMATIC_LEAD = 2.0
+# Traffic flows where speeds reach at least this share of the road's fastest sensor's median
+# speed; slower, it is a queue's: vehicles are stored between sensors (`ends`), a sensor they
+# stand on falls silent (`silences`), vehicles pass neighbouring sensors in waves
+# (`clock_steps`).
+FLOWING_SHARE = 0.5
 # A sensor with fewer than PRIOR_TEST_SAMPLE detections and under this share of a busy
 # neighbour's stopped reporting early in the batch, or started late (`Sensors.sparse`).
 SPARSE_SHARE = 0.5

@@ -235,6 +235,15 @@ class Sensors:
         return median(travel_time(gaps, speeds[:-1], speeds[1:]))
 
 
+def arrival_keys_of(sensor: IntArray, time: FloatArray) -> ComplexArray:
+    """`Sensors.arrival_keys` of these times at these sensors: where `searchsorted` among the
+    arrivals finds them."""
+    keys = np.empty(sensor.size, dtype=np.complex128)
+    keys.real = sensor
+    keys.imag = time
+    return keys
+
+
 def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     """Index the detections by sensor and time, with speeds floored (never divide by ~0)."""
     positions, sensor = np.unique(detections.position, return_inverse=True)

@@ -15,15 +15,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from roadlink.association.associators.assignment.sensors import BoolArray, ComplexArray, Sensors
-from roadlink.association.detections import FloatArray, IntArray
+from roadlink.association.associators.assignment.params import FLOWING_SHARE
+from roadlink.association.associators.assignment.sensors import (
+    BoolArray,
+    Sensors,
+    arrival_keys_of,
+)
+from roadlink.association.detections import IntArray
 
 # A silence is a gap longer than this many of its sensor's median headways around it ...
 SILENCE_HEADWAYS = 10.0
 # ... those of this many consecutive gaps, centred on it ...
 LOCAL_GAPS = 21
-# ... between two reports both slower than this share of the road's fastest sensor's median.
-QUEUE_SPEED_SHARE = 0.5
+# ... between two reports both slower than traffic flows (`params.FLOWING_SHARE` of the road's
+# fastest sensor's median).
 # Gaps whose local medians are worked out at once (about 8 MB of gaps).
 LOCAL_CHUNK = 50_000
 
@@ -33,7 +38,7 @@ def silent_gaps(s: Sensors) -> BoolArray:
     is a silence (False for each sensor's first report)."""
     time = s.sorted_time
     silent = np.zeros(time.size, dtype=bool)
-    slow = s.speed[s.order] < QUEUE_SPEED_SHARE * float(s.median_speed.max())
+    slow = s.speed[s.order] < FLOWING_SHARE * float(s.median_speed.max())
     # Only a gap between two slow reports of one sensor can be a silence: its local median is
     # worked out there alone (in a busy batch few gaps are).
     candidate = slow[1:] & slow[:-1]
@@ -76,17 +81,9 @@ def over_silence(s: Sensors, a: IntArray, b: IntArray, span: IntArray) -> BoolAr
         ends = (t_a[which], t_b[which])
         reached = np.clip(ends[0] + (s.positions[q] - x_a[which]) / fastest, *ends)
         left = np.clip(ends[1] - (x_b[which] - s.positions[q]) / fastest, *ends)
-        place = keys.searchsorted(_keys(q, reached))
+        place = keys.searchsorted(arrival_keys_of(q, reached))
         inside = (place > s.start[q]) & (place < s.start[q + 1])
-        inside &= place == keys.searchsorted(_keys(q, left))
+        inside &= place == keys.searchsorted(arrival_keys_of(q, left))
         hit = which[inside]
         result[skips[hit]] |= s.silent_gaps[place[inside]]
     return result
-
-
-def _keys(sensor: IntArray, time: FloatArray) -> ComplexArray:
-    """`Sensors.arrival_keys` of these times at these sensors."""
-    keys = np.empty(sensor.size, dtype=np.complex128)
-    keys.real = sensor
-    keys.imag = time
-    return keys
