@@ -1,7 +1,7 @@
 """Sensors whose clocks step part-way through a batch (`assignment/clock_steps.py`): found from
 each half's segment lags, placed where the detections stop fitting their neighbours at one
-offset and start at the other, and set right detection by detection; never on the committed
-cases on time."""
+offset and start at the other, and set right detection by detection (at the road's ends too,
+from their one segment); never on the committed cases on time."""
 
 from __future__ import annotations
 
@@ -70,6 +70,20 @@ def test_a_step_of_the_middle_sensors_clock_is_found_where_it_happened(seconds):
     late = np.zeros(middle.size, dtype=bool)
     late[step.later] = True
     assert (late != (d.timestamp[middle] != original)).sum() <= (3 if seconds > 0 else 12)
+
+
+@pytest.mark.parametrize("seconds", [-20.0, 20.0])
+@pytest.mark.parametrize("sensor", [0, 10])
+def test_a_step_at_either_end_of_the_road_is_found_from_its_one_segment(sensor, seconds):
+    # Before, the end sensors were not searched and a step there was set at the neighbour as
+    # one segment's lag alone, leaving the neighbour's other segment off by the step.
+    d = stepped("sumo-freeflow", seconds, sensor=sensor)
+    s = arrange(d.without_labels(), PARAMS)
+    assert s.stepped_sensors == {sensor}
+    on_time = read_detections_csv(SUMO / "sumo-freeflow.csv").timestamp
+    assert np.mean(np.abs(s.time - on_time) < 1.0) > 0.99
+    (warning,) = step_warnings(s.positions, s.clock_offsets, list(s.clock_steps))
+    assert "than the sensor next to it" in warning
 
 
 @pytest.mark.parametrize(("case", "seconds"), [("sumo-dense", 3600.0), ("sumo-freeflow", 120.0)])

@@ -1,8 +1,8 @@
 """Sensors whose clocks are off, found from their segments' lags and set right
 (`assignment/clocks.py`): on SUMO's dense motorway (the committed seed-0 case, travel times of
-about 9 s) with its middle sensor's clock off by seconds to a minute; never on the committed
-queues, slow traffic and faults, on a sensor at either end of the road, or on a paper-size
-batch."""
+about 9 s) with its middle sensor's clock off by seconds to a minute, and on free flow with a
+sensor at either end of the road off; never on the committed queues, slow traffic and faults,
+or on a paper-size batch."""
 
 from __future__ import annotations
 
@@ -72,9 +72,44 @@ def test_clocks_on_time_are_left_alone(case):
     assert np.all(offsets_of(shifted(case, 0.0)) == 0.0)
 
 
+@pytest.mark.parametrize("seconds", [-20.0, 5.0, 20.0])
 @pytest.mark.parametrize("sensor", [0, 10])
-def test_a_clock_at_either_end_of_the_road_has_nothing_to_mirror(sensor):
-    assert np.all(offsets_of(shifted("sumo-dense", 20.0, sensor)) == 0.0)
+def test_a_clock_at_either_end_of_the_road_is_found_from_its_one_segment(sensor, seconds):
+    """Nothing to mirror there, but a clock adds the same seconds to every travel time where
+    traffic that takes longer adds them in proportion: free flow's speeds of 20-40 m/s tell
+    the two apart."""
+    offsets = offsets_of(shifted("sumo-freeflow", seconds, sensor))
+    assert abs(offsets[sensor] - seconds) < 1.0
+    assert np.all(np.delete(offsets, sensor) == 0.0)
+
+
+def test_an_end_segments_lag_in_proportion_to_its_travel_times_is_no_clock():
+    """Traffic that takes 60 % longer over the first segment than its speeds say (every travel
+    time times 1.6), at speeds of 15-35 m/s: its lag peaks some seconds off, as a clock's
+    would, but the pairs fit it as a factor, and the learned biases take it."""
+    rng = np.random.default_rng(0)
+    entry = np.sort(rng.uniform(0.0, 600.0, 400))
+    speed = rng.uniform(15.0, 35.0, entry.size)
+    positions = np.array([0.0, 300.0, 600.0, 900.0])
+
+    def road(factor: float, late: float) -> Road:
+        """The first segment's travel times times `factor`, the first sensor `late` s late."""
+        times = [entry + late, entry + factor * 300.0 / speed]
+        times += [times[1] + 300.0 / speed, times[1] + 600.0 / speed]
+        order = [np.argsort(t) for t in times]
+        return Road(
+            positions, [t[o] for t, o in zip(times, order, strict=True)], [speed[o] for o in order]
+        )
+
+    slower = road(1.6, 0.0)
+    lag = slower.lags([0])[0]
+    assert lag is not None and lag.seconds > 4.0  # 0.6 of a typical 12 s
+    assert not slower.fits_as_clock(0, lag.seconds)
+    # The first sensor's clock as many seconds early instead: a clock.
+    early = road(1.0, -lag.seconds)
+    early_lag = early.lags([0])[0]
+    assert early_lag is not None and abs(early_lag.seconds - lag.seconds) < 1.0
+    assert early.fits_as_clock(0, early_lag.seconds)
 
 
 def test_an_offset_the_learned_biases_take_is_left_to_them():
@@ -154,6 +189,22 @@ def test_dense_traffic_past_an_offset_clock_is_associated_as_on_time(seconds):
     off = associate(shifted("sumo-dense", seconds), "assignment").metrics
     assert on_time is not None and off is not None
     assert off.accuracy >= on_time.accuracy - 0.005
+
+
+@pytest.mark.parametrize(("sensor", "seconds"), [(0, 20.0), (10, -20.0)])
+def test_free_flow_past_an_end_sensors_offset_clock_is_associated_as_on_time(sensor, seconds):
+    """Before, an end sensor's clock was left to the learned biases, factors that cannot take
+    an offset where speeds differ (five seeds, 20 s late at the first sensor: free flow 98.6 ->
+    89.8 %, dense 91.8 -> 84.8 %)."""
+    on_time = associate(shifted("sumo-freeflow", 0.0), "assignment").metrics
+    result = associate(shifted("sumo-freeflow", seconds, sensor), "assignment")
+    assert on_time is not None and result.metrics is not None
+    assert result.metrics.accuracy >= on_time.accuracy - 0.005
+    position = float(np.unique(result.detections.position)[sensor])
+    (warning,) = result.warnings
+    side = "later" if seconds > 0 else "earlier"
+    assert warning.startswith(f"the sensor at position {position:g} stamps its detections 2")
+    assert f"s {side} than the sensor next to it: its clock is off (or the traffic" in warning
 
 
 WARNINGS_LOGGER = "roadlink.association.associators.assignment.associator"

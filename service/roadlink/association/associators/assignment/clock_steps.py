@@ -23,7 +23,10 @@ detection's best pair at the sensors either side, where its own speed says it wo
 scored under both offsets, and the step falls where the running sum of the differences is
 lowest. A step is kept where the detections fit their neighbours with it (`_fits`), leaving
 STEP_LEAST_SIDE of them on either side, and looked for only where traffic flows at the sensor
-and both neighbours.
+and its neighbours. The first and the last sensor have one segment, and nothing to mirror: a
+step there is its segment's lag on time in one half and off in the other, where it fits as a
+clock's and not as slower traffic's (`clocks.Road.fits_as_clock`) and the neighbour's other
+segment is on time in both halves (`_end_step_offsets`).
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ from roadlink.association.associators.assignment.clocks import (
     Lag,
     Road,
     clear,
+    neighbours_of,
 )
 from roadlink.association.associators.assignment.far_clocks import far_offsets
 from roadlink.association.associators.assignment.params import FLOWING_SHARE
@@ -54,7 +58,7 @@ from roadlink.association.detections import FloatArray, IntArray
 # A detection's neighbours are looked for within this many of the lags' bins of where its speed
 # says they would be.
 STEP_FIT_BINS = 3.0
-# Steps are looked for only where traffic flows at the sensor and both its neighbours (a
+# Steps are looked for only where traffic flows at the sensor and its neighbours (a
 # median speed of at least `params.FLOWING_SHARE` of the fastest sensor's): in a crawl vehicles
 # pass neighbouring sensors in waves, and a half's lags mirrored an "offset" of one travel time
 # (SUMO, faulty loops in a queue at 2.7 m/s: a step of 91 s set at a sensor whose clock kept
@@ -103,15 +107,15 @@ def clock_steps(
     flowing = typical >= FLOWING_SHARE * typical.max()
     whole = Road(positions, times, speeds)
     steps, found = [], {}
-    for k in range(1, n - 1):
-        if not flowing[k - 1 : k + 2].all():
+    for k in range(n):
+        if not flowing[max(k - 1, 0) : k + 2].all():
             continue
         if set_right is not None and set_right[k] != 0.0:
             step = _set_right_in_part(whole, speeds, k, float(set_right[k]))
             if step is not None:
                 steps.append(step)
                 continue
-        shown = far.get(k) or _step_offsets(halves, k)
+        shown = far.get(k) or (_step_offsets if 0 < k < n - 1 else _end_step_offsets)(halves, k)
         if shown is not None:
             found[k] = shown
     stepped = {step.sensor for step in steps}
@@ -142,7 +146,8 @@ def _set_right_in_part(
 def _bin_width(positions: FloatArray, speeds: list[FloatArray], k: int) -> float:
     """The lags' bin width (`clocks.CLOCK_BIN_SHARE` of the typical travel time, at least
     `clocks.CLOCK_BIN_LEAST`) of sensor k's segments, their mean length at its median speed."""
-    gap = float(positions[min(k + 1, positions.size - 1)] - positions[max(k - 1, 0)]) / 2
+    ends = positions[max(k - 1, 0)], positions[min(k + 1, positions.size - 1)]
+    gap = float(ends[1] - ends[0]) / len(_neighbours(k, positions.size))
     median_speed = float(np.median(speeds[k]))
     typical = float(travel_time(gap, median_speed, median_speed))
     return max(CLOCK_BIN_SHARE * typical, CLOCK_BIN_LEAST)
@@ -226,6 +231,44 @@ def _step_offsets(
     return before, after, width, first_alone or second_alone
 
 
+def _end_step_offsets(
+    halves: list[tuple[Road, list[Lag | None]]], k: int
+) -> tuple[float, float, float, bool] | None:
+    """`_step_offsets` of the road's first (k = 0) or last sensor, from its one segment: its
+    lag on time in one half, and in the other off by at least CLOCK_LEAST_BINS and fitting as a
+    clock's (`Road.fits_as_clock`: every travel time longer by the same seconds, not by one
+    factor as traffic that slows would make them); the neighbour's other segment on time in
+    both halves (else the step may be the neighbour's)."""
+    n = halves[0][0].positions.size
+    segment, other, sign = (0, 1, -1.0) if k == 0 else (n - 2, n - 3, 1.0)
+    shown = []
+    for half, lags in halves:
+        lag, beside = lags[segment], lags[other]
+        if lag is None or beside is None or not _on_time(beside.seconds, beside.bin_width):
+            return None
+        shown.append((half, lag))
+    (first_half, first), (second_half, second) = shown
+    width = max(first.bin_width, second.bin_width)
+    if _on_time(first.seconds, width) == _on_time(second.seconds, width):
+        return None
+    off_half, off = (second_half, second) if _on_time(first.seconds, width) else (first_half, first)
+    if not off_half.fits_as_clock(segment, off.seconds):
+        return None
+    if off is second:
+        return 0.0, sign * (second.seconds - first.seconds), width, False
+    return sign * (first.seconds - second.seconds), 0.0, width, False
+
+
+def _on_time(lag: float, width: float) -> bool:
+    """Whether a segment's lag (s) is within CLOCK_LEAST_BINS of its bins (`width`) of none."""
+    return abs(lag) < CLOCK_LEAST_BINS * width
+
+
+def _neighbours(k: int, n: int) -> list[int]:
+    """Sensor k's neighbours, of n sensors in road order."""
+    return [j for j in (k - 1, k + 1) if 0 <= j < n]
+
+
 def _placed(road: Road, k: int, before: float, after: float, width: float) -> ClockStep | None:
     """Sensor k's step from `before` to `after` seconds late, placed among its detections and
     its offset measured finer, where the detections fit it (`_fits`); else None."""
@@ -243,18 +286,18 @@ def _placed(road: Road, k: int, before: float, after: float, width: float) -> Cl
     misfit = _misfits(road, k, before, after, width)
     later = _split(road.times[k], before, after, misfit)
     fits = STEP_LEAST_SIDE <= later.size <= size - STEP_LEAST_SIDE
-    if fits and _fits(misfit, later):
+    if fits and _fits(misfit, later, len(_neighbours(k, road.positions.size))):
         return ClockStep(k, float(road.times[k][later[0]]), before, after, later)
     return None
 
 
-def _fits(misfit: tuple[FloatArray, FloatArray], later: IntArray) -> bool:
+def _fits(misfit: tuple[FloatArray, FloatArray], later: IntArray, neighbours: int) -> bool:
     """Whether a sensor's detections, with their `misfit`s at the offsets before and after a
-    step (`_misfits`), fit their neighbours with the step stamping `later`: each side better
-    at its own offset than at the other's by CLOCK_CONFIRM_SAVING a detection (as `clocks`
-    asks of a small offset), and all of them fitting, on average, within STEP_FIT_SHARE of
-    what leaving each alone at both neighbours costs (a road whose lags something else moves,
-    numbered against the traffic, fits neither way)."""
+    step (`_misfits`), fit their `neighbours` (sensors: 1 or 2) with the step stamping `later`:
+    each side better at its own offset than at the other's by CLOCK_CONFIRM_SAVING a detection
+    (as `clocks` asks of a small offset), and all of them fitting, on average, within
+    STEP_FIT_SHARE of what leaving each alone at its neighbours costs (a road whose lags
+    something else moves, numbered against the traffic, fits neither way)."""
     earlier = np.ones(misfit[0].size, dtype=bool)
     earlier[later] = False
     saved_before = float(np.mean(misfit[1][earlier] - misfit[0][earlier]))
@@ -262,7 +305,7 @@ def _fits(misfit: tuple[FloatArray, FloatArray], later: IntArray) -> bool:
     kept = float(np.mean(np.where(earlier, misfit[0], misfit[1])))
     return (
         min(saved_before, saved_after) >= CLOCK_CONFIRM_SAVING
-        and kept <= STEP_FIT_SHARE * CLOCK_CONFIRM_GATE
+        and kept <= STEP_FIT_SHARE * 0.5 * CLOCK_CONFIRM_GATE * neighbours
     )
 
 
@@ -325,12 +368,13 @@ def _split(
 
 def _misfit(road: Road, k: int, offset: float, width: float) -> FloatArray:
     """Each of sensor k's detections' misfit with `offset` taken from its times: at each
-    neighbouring sensor, the least cost of a detection where its own speed says that detection
-    would be (`_nearby`), at most half of CLOCK_CONFIRM_GATE (what leaving it alone costs). A
-    neighbour's time alone fits any offset in dense traffic, a headway or two off."""
+    neighbouring sensor (one at the road's ends), the least cost of a detection where its own
+    speed says that detection would be (`_nearby`), at most half of CLOCK_CONFIRM_GATE (what
+    leaving it alone costs). A neighbour's time alone fits any offset in dense traffic, a
+    headway or two off."""
     alone = 0.5 * CLOCK_CONFIRM_GATE
     total = np.zeros(road.times[k].size)
-    for j in (k - 1, k + 1):
+    for j in _neighbours(k, road.positions.size):
         which, _, cost = _nearby(road, k, j, offset, width)
         least = np.full(total.size, alone)
         np.minimum.at(least, which, cost)
@@ -376,18 +420,19 @@ def step_warnings(
     sensor's times as a whole), for whoever keeps the detector's own clock."""
     if offsets is None:
         offsets = np.zeros(positions.size)
+    beside = [neighbours_of(step.sensor, positions.size) for step in steps]
     return [
         f"the sensor at position {positions[step.sensor]:g} stamps its detections "
-        f"{_lateness(offsets[step.sensor] + step.before)} until its report stamped "
-        f"{step.time + offsets[step.sensor]:g}, and "
-        f"{_lateness(offsets[step.sensor] + step.after)} from that report on: its clock stepped "
-        "while it reported; its times were set right for the association"
-        for step in steps
+        f"{_lateness(offsets[step.sensor] + step.before, them)} until its report "
+        f"stamped {step.time + offsets[step.sensor]:g}, and "
+        f"{_lateness(offsets[step.sensor] + step.after, them)} from that report on: its "
+        "clock stepped while it reported; its times were set right for the association"
+        for step, them in zip(steps, beside, strict=True)
     ]
 
 
-def _lateness(seconds: float) -> str:
+def _lateness(seconds: float, neighbours: str) -> str:
     if abs(seconds) < 0.05:
         return "on time"
     side = "later" if seconds > 0 else "earlier"
-    return f"{abs(seconds):.1f} s {side} than the sensors either side of it"
+    return f"{abs(seconds):.1f} s {side} than {neighbours}"

@@ -24,9 +24,20 @@ points). Matching the sampled detections to their neighbours' by time and speed 
 apart: under a false offset each vehicle pairs with its neighbour, whose speed differs. The
 smaller offsets were missed before (a middle sensor of dense traffic 1.5 s early or late: 77
 and 81 % over five seeds against 92 % on time; now 92 %), and offsets under two bins stay the
-learned biases' (`weak_bias.clock_shifts`). The first and the last sensor have one neighbour
-each, and nothing to mirror: their clocks stay as they are, as does every sensor's where the
-road has fewer than three.
+learned biases' (`weak_bias.clock_shifts`).
+
+The first and the last sensor have one neighbour each, and nothing to mirror: an offset of
+their clocks looks like traffic that takes longer (or shorter) over their one segment. But a
+clock adds the same seconds to every travel time, where traffic that takes longer does so in
+proportion (the learned biases are factors), so an end sensor is set right where its segment's
+lag fits as a clock's (`Road.fits_as_clock`): matching its pairs costs clearly less with every
+travel time longer by the lag than with them on time or longer by one factor. That tells the
+two apart where speeds differ from vehicle to vehicle (a factor of 3.4 on free flow's 7-12 s
+travel times is no 20 s offset); where every vehicle keeps one speed they are alike, and the
+learned bias takes the offset as well. The neighbour's other segment must be on time, or the
+lag may be the neighbour's own clock. Before, an end sensor's clock 20 s late cost SUMO's
+dense motorway 7-8 points, free flow 9. Every sensor's clock stays as it is where the road has
+fewer than three.
 
 A sensor installed some metres from the position the batch gives it shifts the travel times
 either side of it by those metres over each vehicle's speed, opposite ways: where traffic keeps
@@ -83,6 +94,9 @@ CLOCK_CONFIRM_TIME = 0.5
 CLOCK_CONFIRM_SPEED = 0.05
 CLOCK_CONFIRM_GATE = 9.0
 CLOCK_CONFIRM_SAVING = 0.5
+# An end sensor's lag is taken for its clock where it fits better than traffic slower by any of
+# these times the factor that makes the typical travel time that much longer (`fits_as_clock`).
+FIT_FACTORS = tuple(2.0 ** (j / 4) for j in range(-4, 5))
 
 
 @dataclass(frozen=True)
@@ -143,7 +157,26 @@ def clock_offsets(
         offsets[k] += found[k]
         road.times[k] -= found[k]
         lags[k - 1], lags[k] = road.lags([k - 1, k])
+    for k in (0, n - 1):
+        offset = end_offset(road, lags, k)
+        if offset is not None:
+            offsets[k] += offset
+            road.times[k] -= offset
     return offsets
+
+
+def end_offset(road: Road, lags: list[Lag | None], k: int) -> float | None:
+    """The clock offset of the road's first (k = 0) or last sensor, from its one segment's lag
+    (`lags`, every segment's), where that lag fits as a clock's (`Road.fits_as_clock`) and the
+    neighbour's other segment is on time; else None."""
+    n = road.positions.size
+    segment, other, sign = (0, 1, -1.0) if k == 0 else (n - 2, n - 3, 1.0)
+    lag, beside = lags[segment], lags[other]
+    if lag is None or beside is None or abs(beside.seconds) >= CLOCK_LEAST_BINS * beside.bin_width:
+        return None
+    if abs(lag.seconds) < CLOCK_LEAST_BINS * lag.bin_width:
+        return None
+    return sign * lag.seconds if road.fits_as_clock(segment, lag.seconds) else None
 
 
 def clock_warnings(
@@ -154,14 +187,22 @@ def clock_warnings(
     whose sentences `clock_steps.step_warnings` makes."""
     if offsets is None:
         return []
+    n = positions.size
+    # An end sensor's offset is its one segment's: it may be the traffic there.
+    cause = {True: "its position is", False: "the traffic on its segment takes that long"}
     return [
         f"the sensor at position {positions[k]:g} stamps its detections "
-        f"{abs(offsets[k]):.1f} s {'later' if offsets[k] > 0 else 'earlier'} than the sensors "
-        "either side of it: its clock is off (or its position is); its times were set right "
-        "for the association"
-        for k in np.flatnonzero(offsets)
+        f"{abs(offsets[k]):.1f} s {'later' if offsets[k] > 0 else 'earlier'} than "
+        f"{neighbours_of(k, n)}: its clock is off (or {cause[0 < k < n - 1]}); its times were "
+        "set right for the association"
+        for k in np.flatnonzero(offsets).tolist()
         if k not in stepped
     ]
+
+
+def neighbours_of(k: int, n: int) -> str:
+    """What a warning calls sensor k's neighbours, of n sensors in road order."""
+    return "the sensors either side of it" if 0 < k < n - 1 else "the sensor next to it"
 
 
 def mirrored(into: Lag | None, out_of: Lag | None) -> float | None:
@@ -226,22 +267,66 @@ class Road:
         its neighbour, whose speed differs, and matching rejects it."""
         saving, count = 0.0, 0
         for segment, sign in ((k - 1, 1.0), (k, -1.0)):
-            gathered = self._gathered(segment)
-            if gathered is None:
+            matched = self._matched_costs(segment, self._gathered(segment), [0.0, sign * offset])
+            if matched is None:
                 return False
-            lags, width = gathered.pairs.lags, gathered.pairs.width
-            change = gathered.speed_change(self.speeds[segment], self.speeds[segment + 1])
-            shift = sign * offset
-            window = 3.0 * width
-            near = (np.abs(lags) <= window) | (np.abs(lags - shift) <= window)
-            left, right, lags = gathered.which[near], gathered.at[near], lags[near]
-            speed_cost = np.square(change[near] / CLOCK_CONFIRM_SPEED)
-            spread = CLOCK_CONFIRM_TIME * width
-            costs = [np.square((lags - centre) / spread) + speed_cost for centre in (0.0, shift)]
-            on_time, shifted = (matched_cost(left, right, c, CLOCK_CONFIRM_GATE) for c in costs)
+            (on_time, shifted), sampled = matched
             saving += on_time - shifted
-            count += int(np.unique(gathered.which).size)
+            count += sampled
         return saving >= CLOCK_CONFIRM_SAVING * count
+
+    def fits_as_clock(self, segment: int, shift: float) -> bool:
+        """Whether matching the segment's sampled pairs by time and speed costs clearly less
+        (CLOCK_CONFIRM_SAVING a sampled detection) with every travel time `shift` seconds longer
+        than its kinematic prediction, as a clock at one end makes them, than both on time and
+        longer by any one factor (FIT_FACTORS: the factor that makes the typical travel time
+        `shift` longer, and others around it, since the lags of a factor peak where the
+        quickest vehicles are), as traffic that takes longer over the segment makes them."""
+        gathered = self._gathered(segment)
+        if gathered is None:
+            return False
+        near_speed = gathered.near_speed[gathered.which]
+        far_speed = self.speeds[segment + 1][gathered.at]
+        gap = float(self.positions[segment + 1] - self.positions[segment])
+        kinematic = travel_time(gap, near_speed, far_speed)
+        share = shift / gathered.pairs.typical
+        by_factor = [share * scale * kinematic for scale in FIT_FACTORS]
+        matched = self._matched_costs(segment, gathered, [shift, 0.0, *by_factor])
+        if matched is None:
+            return False
+        (as_clock, *others), sampled = matched
+        return min(others) - as_clock >= CLOCK_CONFIRM_SAVING * sampled
+
+    def _matched_costs(
+        self, segment: int, gathered: Gathered | None, centres: list[float | FloatArray]
+    ) -> tuple[list[float], int] | None:
+        """The cost of matching the segment's sampled pairs near each of `centres` (a lag in
+        seconds, or one a pair), each pair's lag costing its square off the centre in
+        CLOCK_CONFIRM_TIME bins and its speed change its square in CLOCK_CONFIRM_SPEED, a
+        detection left alone half of CLOCK_CONFIRM_GATE; and how many sampled detections the
+        segment has (None where it has too few detections to be searched: no `gathered`)."""
+        if gathered is None:
+            return None
+        lags, width = gathered.pairs.lags, gathered.pairs.width
+        change = gathered.speed_change(self.speeds[segment], self.speeds[segment + 1])
+        window = 3.0 * width
+        near = np.zeros(lags.size, dtype=bool)
+        for centre in centres:
+            near |= np.abs(lags - centre) <= window
+        left, right = gathered.which[near], gathered.at[near]
+        speed_cost = np.square(change[near] / CLOCK_CONFIRM_SPEED)
+        spread = CLOCK_CONFIRM_TIME * width
+        costs = [
+            matched_cost(
+                left,
+                right,
+                np.square((lags[near] - np.broadcast_to(centre, lags.shape)[near]) / spread)
+                + speed_cost,
+                CLOCK_CONFIRM_GATE,
+            )
+            for centre in centres
+        ]
+        return costs, int(np.unique(gathered.which).size)
 
     def _pairs(self, k: int) -> SegmentPairs | None:
         """Segment k's sampled detections' lags to the far sensor's detections within reach of
