@@ -42,6 +42,10 @@ wrongly puts one an hour off.
 or start late (`lastN`: its last N), as a detector that fails, loses power or comes back
 online part-way through a batch does (`with_quiet`).
 
+`--speed-factor F` has the middle sensor read every speed F times what it is (`0.7first`,
+`1.4last`: the first or last sensor), as a single loop does whose assumed vehicle length is off
+(`with_speed_factor`).
+
 `--time-step S` stamps every detection to the nearest S seconds, and `--whole-speeds kmh` (or
 `mph`) reads every speed to a whole km/h (mile an hour), as many field detectors and traffic
 controllers report them (`with_readings`).
@@ -190,6 +194,32 @@ def quiet_option(value: str) -> str:
     return value
 
 
+SPEED_FACTOR = re.compile(r"(\d+(?:\.\d+)?)(first|last)?")
+
+
+def with_speed_factor(detections: Detections, factor: str | None) -> Detections:
+    """The case as a middle sensor (or the first or last: `0.7first`) reading every speed the
+    `factor` times it is would report it (`--speed-factor`); None leaves it as it is."""
+    if factor is None:
+        return detections
+    match = SPEED_FACTOR.fullmatch(factor)
+    if match is None or float(match.group(1)) <= 0:
+        raise ValueError(f"--speed-factor: expected F, Ffirst or Flast (F > 0), got {factor!r}")
+    positions = np.unique(detections.position)
+    sensor = {"first": 0, "last": -1, None: positions.size // 2}[match.group(2)]
+    at = detections.position == positions[sensor]
+    velocity = np.where(at, float(match.group(1)) * detections.velocity, detections.velocity)
+    return dataclasses.replace(detections, velocity=velocity)
+
+
+def speed_factor_option(value: str) -> str:
+    """`--speed-factor`'s value, checked before any case is simulated."""
+    match = SPEED_FACTOR.fullmatch(value)
+    if match is None or float(match.group(1)) <= 0:
+        raise argparse.ArgumentTypeError(f"expected F, Ffirst or Flast (F > 0): {value}")
+    return value
+
+
 # A speed in m/s is this many of each unit (`--whole-speeds`).
 SPEED_UNITS = {"kmh": 3.6, "mph": 3600.0 / 1609.344}
 
@@ -320,6 +350,12 @@ def main() -> None:
         "starts late (lastN).",
     )
     parser.add_argument(
+        "--speed-factor",
+        type=speed_factor_option,
+        help="The middle sensor reads every speed F times what it is (Ffirst, Flast: the first "
+        "or last sensor).",
+    )
+    parser.add_argument(
         "--time-step", type=float, help="Stamp every time to the nearest this many seconds."
     )
     parser.add_argument(
@@ -369,6 +405,7 @@ def main() -> None:
         for seed in range(args.seeds):
             detections = load_case(scenario, seed, args.data, args.export, noise)
             detections = with_quiet(with_clock(detections, args.clock, seed), args.quiet)
+            detections = with_speed_factor(detections, args.speed_factor)
             detections = with_readings(detections, args.time_step, args.whole_speeds)
             sizes.setdefault(scenario, []).append(describe(detections))
             for (name, features), title in zip(columns, titles, strict=True):
@@ -406,6 +443,7 @@ def main() -> None:
                 "length_noise": noise,
                 "clock": args.clock,
                 "quiet": args.quiet,
+                "speed_factor": args.speed_factor,
                 "time_step": args.time_step,
                 "whole_speeds": args.whole_speeds,
                 "timeout_seconds": args.timeout,

@@ -117,6 +117,21 @@ def test_a_quiet_middle_sensor_keeps_its_first_or_last_reports_alone():
         bench.with_quiet(d, "early2")
 
 
+def test_a_speed_factor_scales_one_sensors_speeds_alone():
+    d = Detections.from_columns(
+        np.repeat([0.0, 100.0, 200.0, 300.0, 400.0], 2), np.full(10, 20.0), np.arange(10.0)
+    )
+    slow = bench.with_speed_factor(d, "0.7")
+    np.testing.assert_allclose(slow.velocity, np.where(d.position == 200, 14.0, 20.0))
+    np.testing.assert_array_equal(slow.timestamp, d.timestamp)
+    fast = bench.with_speed_factor(d, "1.5last")
+    np.testing.assert_allclose(fast.velocity, np.where(d.position == 400, 30.0, 20.0))
+    assert bench.with_speed_factor(d, None) is d
+    for wrong in ("0", "fast", "0.7middle"):
+        with pytest.raises(ValueError, match="speed-factor"):
+            bench.with_speed_factor(d, wrong)
+
+
 def test_coarse_readings_stamp_whole_steps_and_read_whole_units():
     d = Detections.from_columns([0.0, 100.0, 200.0], [10.0, 27.8, 0.1], [0.26, 5.74, 9.5])
     np.testing.assert_allclose(bench.with_readings(d, 0.5, None).timestamp, [0.5, 5.5, 9.5])

@@ -117,6 +117,9 @@ def test_a_sensor_that_reports_one_speed_for_every_vehicle_is_named(caplog):
         d.position, np.where(third, 25.0, d.velocity), d.timestamp, target=list(d.target)
     )
     s = arrange(stuck, AssignmentParams())
+    assert s.reads_one_speed.tolist() == [k == 2 for k in range(s.positions.size)]
+    # Its median tells nothing of its calibration (`weak_bias.calibration_biases`).
+    assert np.isnan(s.calibration_speed[2]) and np.isfinite(np.delete(s.calibration_speed, 2)).all()
     assert one_speed_warnings(s) == [
         f"the sensor at position {np.unique(d.position)[2]:g} reports one speed (25) for every "
         "vehicle: its speeds tell vehicles nothing apart (a loop that counts and fills in a "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,11 +38,7 @@ from roadlink.association.associators.assignment.sensors import (
     Sensors,
     travel_time,
 )
-from roadlink.association.associators.assignment.weak_bias import (
-    clock_shifts,
-    confirmed_bias,
-    scale_echoes,
-)
+from roadlink.association.associators.assignment.weak_bias import confirmed_bias, explained_biases
 from roadlink.association.detections import FloatArray, IntArray
 
 BoolArray = npt.NDArray[np.bool_]
@@ -78,11 +75,11 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
         s.members(p)[:: max(1, s.members(p).size // PRIOR_SAMPLE)] for p in range(n_sensors - 1)
     ]
     tested = [tested_segment(s, sample, p) for p, sample in enumerate(samples)]
-    weak: dict[int, float] = {}
+    confirmed: dict[int, tuple[float, float]] = {}
     for p in np.flatnonzero(tested).tolist():
-        log_bias[p, 1], confirmed = travel_time_bumps(s, samples[p], p + 1, params)
-        if confirmed is not None:
-            weak[p] = confirmed
+        log_bias[p, 1], by_matching = travel_time_bumps(s, samples[p], p + 1, params)
+        if by_matching is not None:
+            confirmed[p] = by_matching
     few = np.flatnonzero(~np.array(tested, dtype=bool)).tolist()
     log_bias[few, 1] = few_targets_priors(s, [samples[p] for p in few], np.array(few) + 1)
     # A mode needs true pairs to pile up: where either sensor saw only a vehicle or two (it
@@ -98,8 +95,11 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
         return travel_time(s.positions[p + span] - s.positions[p], medians[p], medians[p + span])
 
     one_segment = kinematic(1)
-    explained = clock_shifts(weak, log_bias[:-1, 1], one_segment)
-    explained.update(scale_echoes(weak, log_bias[:-1, 1]))
+    pairs = functools.partial(CandidatePairs.within_reach, s)
+    tested_samples = [a if tested[p] else a[:0] for p, a in enumerate(samples)]
+    explained = explained_biases(
+        confirmed, log_bias[:-1, 1], one_segment, s.calibration_speed, pairs, tested_samples, params
+    )
     for segment, bias in explained.items():
         log_bias[segment, 1] = bias
     typical = np.exp(log_bias[:-1, 1]) * one_segment
@@ -136,7 +136,7 @@ def tested_segment(s: Sensors, sample: IntArray, p: int) -> bool:
 
 def travel_time_bumps(
     s: Sensors, a: IntArray, q: int, params: AssignmentParams
-) -> tuple[float, float | None]:
+) -> tuple[float, tuple[float, float] | None]:
     """A segment's log bias before anything is linked: the most common log(observed / kinematic
     travel time) of the pairs from detections a to sensor q, or 0, the kinematic prediction,
     unless the data clearly say otherwise; and a bias that the pairs show less clearly but

@@ -120,6 +120,23 @@ class Sensors:
         typical[sparse] = np.interp(self.positions[sparse], self.positions[busy], typical[busy])
         return typical
 
+    @cached_property
+    def reads_one_speed(self) -> BoolArray:
+        """Per sensor: whether it reports one speed, above the floor, for each of its vehicles
+        (ONE_SPEED_DETECTIONS or more; a loop that counts vehicles and fills in a default, a
+        stuck reading). Its speeds tell the vehicles nothing apart, nor its calibration."""
+        if self.order.size == 0:
+            return np.zeros(self.positions.size, dtype=bool)
+        lowest = np.minimum.reduceat(self.speed[self.order], self.start[:-1])
+        one: BoolArray = (np.diff(self.start) >= ONE_SPEED_DETECTIONS) & (lowest == self.top_speed)
+        return one & (self.top_speed > self.speed_floor)
+
+    @property
+    def calibration_speed(self) -> FloatArray:
+        """Each sensor's typical speed where it tells its calibration; NaN where it reads one
+        speed (`reads_one_speed`)."""
+        return np.where(self.reads_one_speed, np.nan, self.typical_speed)
+
     @property
     def stepped_sensors(self) -> frozenset[int]:
         """The sensors whose clocks stepped while they reported (`clock_steps`)."""
@@ -336,15 +353,10 @@ def one_speed_warnings(s: Sensors) -> list[str]:
     vehicles and fills in a default speed, a stuck reading): its speeds tell the vehicles
     nothing apart, and whoever keeps it should know. The association learns that from the
     tracks as it learns any sensor's speed spread."""
-    counts = np.diff(s.start)
-    warnings = []
-    for k in np.flatnonzero(counts >= ONE_SPEED_DETECTIONS).tolist():
-        speeds = s.speed[s.order[s.start[k] : s.start[k + 1]]]
-        # (All floored is a standing queue read below the floor, not one reading.)
-        if speeds.min() == speeds.max() > s.speed_floor:
-            warnings.append(
-                f"the sensor at position {s.positions[k]:g} reports one speed ({speeds[0]:g}) "
-                "for every vehicle: its speeds tell vehicles nothing apart (a loop that counts "
-                "and fills in a default, or a stuck reading?)"
-            )
-    return warnings
+    # (All floored is a standing queue read below the floor, not one reading.)
+    return [
+        f"the sensor at position {s.positions[k]:g} reports one speed ({s.top_speed[k]:g}) "
+        "for every vehicle: its speeds tell vehicles nothing apart (a loop that counts "
+        "and fills in a default, or a stuck reading?)"
+        for k in np.flatnonzero(s.reads_one_speed).tolist()
+    ]

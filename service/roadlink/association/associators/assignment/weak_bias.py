@@ -17,16 +17,26 @@ matching the sample's detections under it costs less than under the kinematic pr
 Only detections whose partner falls inside the batch's time window under both biases are
 matched: in a crawl half the detections have no partner in the window, and a bias that pairs
 them with vehicles that are there would win for that alone.
+
+A sensor whose speeds read some factor off (a single loop's assumed vehicle length) moves both
+its segments' biases alike, and where its factor is moderate and traffic dense neither bump
+stands out nor does matching confirm either alone. Its median speed stands off its neighbours'
+by that factor, though, which says where to look: the biases that factor gives both segments are
+matched, and kept where both save a fainter FAINT_BIAS_SAVING a detection (`calibration_biases`).
 """
 
 from __future__ import annotations
 
+import functools
+import math
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
 from roadlink.association.associators.assignment.matching import matched_cost
+from roadlink.association.associators.assignment.params import FLOWING_SHARE
 from roadlink.association.associators.assignment.sensors import travel_time
 
 # What matching under a weaker bump's bias must save a sampled detection, against the kinematic
@@ -37,6 +47,14 @@ WEAK_BIAS_SAVING = 1.0
 # The biases tried around the bump (log travel time): a bin's width either side, and then some.
 WEAK_BIAS_REACH = 0.1
 WEAK_BIAS_STEPS = 11
+# A sensor whose median speed stands this factor or more off its neighbours' is tested for a
+# speed calibration off by it (`calibration_biases`): its segments' biases as that factor would
+# make them are taken where matching confirms both by FAINT_BIAS_SAVING a detection or more (short
+# of WEAK_BIAS_SAVING, which one segment's weak bias needs alone). In dense traffic a sensor
+# reading 0.7 times the speed left both its segments' biases (-0.19) at 0.45-0.91 a detection on
+# three seeds of five, below the histogram's significance, and the first tracks broke there.
+CALIBRATION_LEAST = 1.1
+FAINT_BIAS_SAVING = 0.4
 # A neighbouring segment mirrors a weak bias where its shift in seconds is the opposite of the
 # weak one's within this factor (a clock 2 s late: +1.7 s into the sensor, -1.9 s out of it).
 CLOCK_MIRROR = 1.5
@@ -53,17 +71,20 @@ SPEED_FACTOR_WARNING = 1.25
 if TYPE_CHECKING:
     from roadlink.association.associators.assignment.params import AssignmentParams
     from roadlink.association.associators.assignment.prior import CandidatePairs
-    from roadlink.association.detections import FloatArray
+    from roadlink.association.detections import FloatArray, IntArray
 
 
-def confirmed_bias(pairs: CandidatePairs, bump: float, params: AssignmentParams) -> float | None:
+def confirmed_bias(
+    pairs: CandidatePairs, bump: float, params: AssignmentParams
+) -> tuple[float, float] | None:
     """The bias near `bump` (within `WEAK_BIAS_REACH`) under which the sample's detections
-    match the far sensor's at least cost, where that cost is clearly below the kinematic
-    prediction's (bias 0), by at least `WEAK_BIAS_SAVING` a detection; else None. Each pair
-    costs its travel time's and its speed change's squared errors at the prior's spreads, each
-    detection left alone half the gate. (The histogram's bump is a bin's centre among pairs
-    that are mostly unrelated; the matching's best bias is the true pairs' own: on a slow zone
-    -0.28 to -0.30 where the bump said -0.32 to -0.37, the true links -0.29 to -0.31.)"""
+    match the far sensor's at least cost, and what it saves a sampled detection against the
+    kinematic prediction (bias 0), where that is at least `FAINT_BIAS_SAVING`; else None. (At
+    `WEAK_BIAS_SAVING` or more it is confirmed alone.) Each pair costs its travel time's and
+    its speed change's squared errors at the prior's spreads, each detection left alone half
+    the gate. (The histogram's bump is a bin's centre among pairs that are mostly unrelated;
+    the matching's best bias is the true pairs' own: on a slow zone -0.28 to -0.30 where the
+    bump said -0.32 to -0.37, the true links -0.29 to -0.31.)"""
     s = pairs.s
     near, far = int(s.sensor[pairs.a[0]]), int(s.sensor[pairs.pb[0]])
     biases = bump + np.linspace(-WEAK_BIAS_REACH, WEAK_BIAS_REACH, WEAK_BIAS_STEPS)
@@ -84,9 +105,10 @@ def confirmed_bias(pairs: CandidatePairs, bump: float, params: AssignmentParams)
 
     costs = [cost_at(float(bias)) for bias in biases]
     best = int(np.argmin(costs))
-    if cost_at(0.0) - costs[best] < WEAK_BIAS_SAVING * pairs.a.size:
+    saving = (cost_at(0.0) - costs[best]) / pairs.a.size
+    if saving < FAINT_BIAS_SAVING:
         return None
-    return float(biases[best])
+    return float(biases[best]), saving
 
 
 def _inside_under(
@@ -155,6 +177,88 @@ def scale_echoes(weak: dict[int, float], biases: FloatArray) -> dict[int, float]
     }
 
 
+def explained_biases(
+    confirmed: dict[int, tuple[float, float]],
+    log_bias: FloatArray,
+    seconds: FloatArray,
+    median_speed: FloatArray,
+    pairs_of: Callable[[IntArray, int], CandidatePairs | None],
+    samples: list[IntArray],
+    params: AssignmentParams,
+) -> dict[int, float]:
+    """The segments' weak biases (by segment) that a sensor's clock or its speeds' calibration
+    explains: those matching confirmed (`confirmed`: by segment, the bias and its saving a
+    detection; WEAK_BIAS_SAVING or more) that a neighbour mirrors (`clock_shifts`) or echoes
+    (`scale_echoes`), and the pairs a sensor's calibration gives (`calibration_biases`). The
+    segments' prior biases are `log_bias`, their typical travel times `seconds`, each sensor's
+    median speed `median_speed`, and each segment's pairs those of its sample's detections
+    (`samples`; empty where a handful of targets is no test of a sensor's calibration) to its
+    far sensor (`pairs_of(sample, far sensor)`), matched at `params`' spreads."""
+    weak = {p: bias for p, (bias, saving) in confirmed.items() if saving >= WEAK_BIAS_SAVING}
+    explained = clock_shifts(weak, log_bias, seconds)
+    explained.update(scale_echoes(weak, log_bias))
+    pairs = [functools.partial(pairs_of, sample, p + 1) for p, sample in enumerate(samples)]
+    explained.update(calibration_biases(confirmed, log_bias, median_speed, pairs, params))
+    return explained
+
+
+def calibration_biases(
+    confirmed: dict[int, tuple[float, float]],
+    log_bias: FloatArray,
+    median_speed: FloatArray,
+    pairs_of: Sequence[Callable[[], CandidatePairs | None]],
+    params: AssignmentParams,
+) -> dict[int, float]:
+    """The segments' biases where a sensor's speeds read some factor off (a loop's calibration):
+    for each sensor between two segments whose histograms left the kinematic prediction standing
+    (`log_bias` 0), where its median speed stands at least CALIBRATION_LEAST off its
+    neighbours' (of `median_speed`, by sensor; NaN where a sensor's speeds tell nothing of its
+    calibration), the biases that factor would give both segments
+    (`speed_factors` inverted), each matched near it (`confirmed_bias` of the segment's pairs,
+    `pairs_of[segment]()`, unless `confirmed` has it already: by segment, the bias and its
+    saving a detection) and kept where both save at least FAINT_BIAS_SAVING a detection, echo
+    each other and put the factor as the median speed does (`off_as_factor`), where traffic
+    flows at the sensor and both neighbours (`params.FLOWING_SHARE`). Traffic slower at a sensor
+    takes longer over its segments too, and leaves the kinematic prediction the better match
+    there; a queue's alignment shifted by a vehicle moves each segment its own way, but at a
+    queue's head or tail both may move alike (SUMO's queue: a sensor among crawling neighbours
+    taken to read 1.6 times the speed, 1 point lost, before traffic had to flow there).
+    """
+    kept: dict[int, float] = {}
+    told = median_speed[np.isfinite(median_speed)]
+    flowing = median_speed >= FLOWING_SHARE * (told.max() if told.size else np.inf)
+    for k in range(1, median_speed.size - 1):
+        factor = median_speed[k] / np.sqrt(median_speed[k - 1] * median_speed[k + 1])
+        if not abs(np.log(factor)) >= np.log(CALIBRATION_LEAST) or log_bias[k - 1] or log_bias[k]:
+            continue  # (NaN, a sensor whose speeds tell nothing, is never off)
+        if not flowing[k - 1 : k + 2].all():
+            continue
+        predicted = -float(np.log((1.0 + 1.0 / factor) / 2.0))
+        into = confirmed.get(k - 1) or _confirmed_near(pairs_of[k - 1](), predicted, params)
+        out_of = confirmed.get(k) or _confirmed_near(pairs_of[k](), predicted, params)
+        if into is None or out_of is None or not echo(into[0], out_of[0]):
+            continue
+        factor = float(speed_factors(np.array([into[0], out_of[0]]))[1])
+        if off_as_factor(median_speed[k - 1 : k + 2], factor):
+            kept[k - 1], kept[k] = into[0], out_of[0]
+    return kept
+
+
+def _confirmed_near(
+    pairs: CandidatePairs | None, bias: float, params: AssignmentParams
+) -> tuple[float, float] | None:
+    """`confirmed_bias` of `pairs` near `bias` (None for no pairs)."""
+    return None if pairs is None else confirmed_bias(pairs, bias, params)
+
+
+def off_as_factor(medians: FloatArray, factor: float) -> bool:
+    """Whether the middle of three sensors' median speeds (`medians`, in road order) stands off
+    the other two's (their geometric mean) the way a speed `factor` at it would put it, by at
+    least half that factor (in log)."""
+    between = float(np.log(medians[1] / np.sqrt(medians[0] * medians[2])))
+    return factor != 1.0 and between * math.log(factor) >= 0.5 * math.log(factor) ** 2
+
+
 def echo(a: npt.ArrayLike, b: npt.ArrayLike) -> npt.NDArray[np.bool_]:
     """Whether log biases `a` and `b` echo each other: the same sign, each within `SCALE_ECHO`
     of the other (elementwise)."""
@@ -187,10 +291,9 @@ def speed_factor_warnings(
     two segments' travel times may both run long while the sensor between them reads what its
     neighbours read (an oracle's true biases in a lane drop's queue gave 2.0)."""
     factor = speed_factors(log_bias)
-    between = np.ones(factor.size)
-    between[1:-1] = median_speed[1:-1] / np.sqrt(median_speed[:-2] * median_speed[2:])
     off = np.abs(np.log(factor)) >= np.log(SPEED_FACTOR_WARNING)
-    off &= np.log(between) * np.log(factor) >= 0.5 * np.square(np.log(factor))
+    for k in np.flatnonzero(off[1:-1]) + 1:
+        off[k] = off_as_factor(median_speed[k - 1 : k + 2], float(factor[k]))
     return [
         f"the sensor at position {positions[k]:g} reads speeds about {factor[k]:.2f} times what "
         "the travel times either side of it give: its speed calibration or unit is off (km/h "
