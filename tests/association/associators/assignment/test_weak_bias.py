@@ -220,6 +220,24 @@ def test_dense_traffic_past_a_sensor_reading_slow_is_associated_as_without_it():
     assert "reads speeds about 0.7" in warning
 
 
+def end_sensor_slow(sensor: int) -> Detections:
+    """The committed dense case, its first (0) or last (10) sensor reading 0.7 times the speed."""
+    d = dense()
+    at = d.position == np.unique(d.position)[sensor]
+    return dataclasses.replace(d, velocity=np.where(at, 0.7 * d.velocity, d.velocity))
+
+
+@pytest.mark.parametrize(("sensor", "segment"), [(0, 0), (10, 9)])
+def test_an_end_sensor_reading_slow_gives_its_one_segment_its_bias(sensor, segment):
+    """One segment, nothing to echo: its bias is kept where matching confirms it, at the factor
+    its median speed stands off its one neighbour's, and the neighbour's other segment keeps the
+    kinematic prediction (else the neighbour may be the one off)."""
+    s = arrange(end_sensor_slow(sensor).without_labels(), PARAMS)
+    bias = segment_prior(s, 3, PARAMS).log_bias[:-1, 1]
+    assert bias[segment] == pytest.approx(-np.log((1.0 + 1.0 / 0.7) / 2.0), abs=0.03)
+    assert np.all(np.delete(bias, segment) == 0.0)
+
+
 def test_a_faint_bias_either_side_is_no_calibration_without_the_median_speed():
     """Both segments of the sensor faintly confirmed at a bias that a sensor reading 0.7 times
     the speed would give them; but where its median speed is its neighbours', the traffic

@@ -223,6 +223,11 @@ def calibration_biases(
     there; a queue's alignment shifted by a vehicle moves each segment its own way, but at a
     queue's head or tail both may move alike (SUMO's queue: a sensor among crawling neighbours
     taken to read 1.6 times the speed, 1 point lost, before traffic had to flow there).
+
+    The first and the last sensor have one segment and nothing to echo: its bias is kept where
+    matching confirms it as above, at the factor the sensor's median speed stands off its one
+    neighbour's, where the neighbour's other segment keeps the kinematic prediction too (else
+    the neighbour may be the sensor off).
     """
     kept: dict[int, float] = {}
     told = median_speed[np.isfinite(median_speed)]
@@ -241,6 +246,17 @@ def calibration_biases(
         factor = float(speed_factors(np.array([into[0], out_of[0]]))[1])
         if off_as_factor(median_speed[k - 1 : k + 2], factor):
             kept[k - 1], kept[k] = into[0], out_of[0]
+    n = median_speed.size
+    for k, segment, beside, other in ((0, 0, 1, 1), (n - 1, n - 2, n - 2, n - 3)):
+        if n < 3 or segment in kept or other in kept or log_bias[segment] or log_bias[other]:
+            continue
+        factor = median_speed[k] / median_speed[beside]
+        if not abs(np.log(factor)) >= np.log(CALIBRATION_LEAST) or not flowing[[k, beside]].all():
+            continue
+        predicted = -float(np.log((1.0 + 1.0 / factor) / 2.0))
+        found = confirmed.get(segment) or _confirmed_near(pairs_of[segment](), predicted, params)
+        if found is not None and found[1] >= FAINT_BIAS_SAVING and echo(found[0], predicted):
+            kept[segment] = found[0]
     return kept
 
 
