@@ -238,6 +238,23 @@ def test_an_end_sensor_reading_slow_gives_its_one_segment_its_bias(sensor, segme
     assert np.all(np.delete(bias, segment) == 0.0)
 
 
+def test_an_end_sensor_reading_slow_is_named_from_its_one_segment():
+    result = associate(end_sensor_slow(10), "assignment")
+    position = np.unique(result.detections.position)[10]
+    (warning,) = result.warnings
+    assert (
+        warning.startswith(f"the sensor at position {position:g} reads speeds about 0.7")
+        and "times what the travel times to the sensor next to it give" in warning
+    )
+    # A first segment slower than its speeds say (a bias the other sign) names no sensor.
+    positions = np.array([0.0, 100.0, 200.0, 300.0])
+    slower = np.array([np.log(1.3), 0.0, 0.0])
+    assert speed_factor_warnings(positions, slower, np.array([14.0, 20.0, 20.0, 20.0])) == []
+    faster = np.array([-np.log(1.3), 0.0, 0.0])
+    (named,) = speed_factor_warnings(positions, faster, np.array([14.0, 20.0, 20.0, 20.0]))
+    assert named.startswith("the sensor at position 0 reads speeds about 0.6")
+
+
 def test_a_faint_bias_either_side_is_no_calibration_without_the_median_speed():
     """Both segments of the sensor faintly confirmed at a bias that a sensor reading 0.7 times
     the speed would give them; but where its median speed is its neighbours', the traffic

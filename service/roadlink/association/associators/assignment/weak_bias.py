@@ -227,7 +227,8 @@ def calibration_biases(
     The first and the last sensor have one segment and nothing to echo: its bias is kept where
     matching confirms it as above, at the factor the sensor's median speed stands off its one
     neighbour's, where the neighbour's other segment keeps the kinematic prediction too (else
-    the neighbour may be the sensor off).
+    the neighbour may be the sensor off) and traffic flows at the three sensors of the road's end
+    (`road_ends`).
     """
     kept: dict[int, float] = {}
     told = median_speed[np.isfinite(median_speed)]
@@ -247,17 +248,24 @@ def calibration_biases(
         if off_as_factor(median_speed[k - 1 : k + 2], factor):
             kept[k - 1], kept[k] = into[0], out_of[0]
     n = median_speed.size
+    ends = road_ends(n)
     for k, segment, beside, other in ((0, 0, 1, 1), (n - 1, n - 2, n - 2, n - 3)):
         if n < 3 or segment in kept or other in kept or log_bias[segment] or log_bias[other]:
             continue
         factor = median_speed[k] / median_speed[beside]
-        if not abs(np.log(factor)) >= np.log(CALIBRATION_LEAST) or not flowing[[k, beside]].all():
+        if not abs(np.log(factor)) >= np.log(CALIBRATION_LEAST) or not flowing[ends[k]].all():
             continue
         predicted = -float(np.log((1.0 + 1.0 / factor) / 2.0))
         found = confirmed.get(segment) or _confirmed_near(pairs_of[segment](), predicted, params)
         if found is not None and found[1] >= FAINT_BIAS_SAVING and echo(found[0], predicted):
             kept[segment] = found[0]
     return kept
+
+
+def road_ends(n: int) -> dict[int, list[int]]:
+    """The first and the last of n sensors (n >= 3), each with the two sensors beside it in
+    road order: where traffic must flow for its calibration to be read off its one segment."""
+    return {0: [0, 1, 2], n - 1: [n - 1, n - 2, n - 3]}
 
 
 def _confirmed_near(
@@ -305,14 +313,31 @@ def speed_factor_warnings(
     unit; the association takes the factor into its segments' biases), where its median speed
     stands off its neighbours' the same way, by at least half that factor (in log): in a queue
     two segments' travel times may both run long while the sensor between them reads what its
-    neighbours read (an oracle's true biases in a lane drop's queue gave 2.0)."""
+    neighbours read (an oracle's true biases in a lane drop's queue gave 2.0). The first and
+    the last sensor are read off their one segment's bias, where the neighbour's other segment
+    keeps the kinematic prediction, traffic flows at the three sensors of the road's end and
+    the median speed stands off the one neighbour's alike (traffic slower there, not a
+    calibration, makes the bias the other sign; a queue's entry, read against the traffic, took
+    its first segment's bias of 0.16 for a sensor reading 1.43 times the speed)."""
     factor = speed_factors(log_bias)
+    n = factor.size
+    if n >= 3:
+        flowing = median_speed >= FLOWING_SHARE * median_speed.max()
+        for k, segment, other in ((0, 0, 1), (n - 1, n - 2, n - 3)):
+            half = 2.0 * np.exp(-log_bias[segment]) - 1.0
+            read = half > 0 and log_bias[other] == 0.0 and flowing[road_ends(n)[k]].all()
+            factor[k] = 1.0 / half if read else 1.0
     off = np.abs(np.log(factor)) >= np.log(SPEED_FACTOR_WARNING)
-    for k in np.flatnonzero(off[1:-1]) + 1:
-        off[k] = off_as_factor(median_speed[k - 1 : k + 2], float(factor[k]))
+    for k in np.flatnonzero(off).tolist():
+        if 0 < k < n - 1:
+            off[k] = off_as_factor(median_speed[k - 1 : k + 2], float(factor[k]))
+        else:
+            beside = float(median_speed[1 if k == 0 else n - 2])
+            off[k] = off_as_factor(np.array([beside, median_speed[k], beside]), float(factor[k]))
     return [
         f"the sensor at position {positions[k]:g} reads speeds about {factor[k]:.2f} times what "
-        "the travel times either side of it give: its speed calibration or unit is off (km/h "
-        "read as m/s is 3.6 times); the association allowed for it"
-        for k in np.flatnonzero(off)
+        f"the travel times {'either side of it' if 0 < k < n - 1 else 'to the sensor next to it'} "
+        "give: its speed calibration or unit is off (km/h read as m/s is 3.6 times); the "
+        "association allowed for it"
+        for k in np.flatnonzero(off).tolist()
     ]
