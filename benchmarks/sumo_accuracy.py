@@ -34,9 +34,12 @@ directory of their own: their names are the scenarios'.
 `late2` puts the middle sensor's clock 2 s late, `early2` early, and `spread1` offsets every
 sensor's clock by a normal draw of 1 s (std; drawn from the seed, the same for every
 associator); any number of seconds may follow the word, and `first` or `last` after it moves
-the first or last sensor's clock instead of the middle one's (`late3600last`). Field sensors
-that no GPS or NTP keeps in step drift by seconds; a time zone or daylight saving time set
-wrongly puts one an hour off.
+the first or last sensor's clock instead of the middle one's (`late3600last`). `step20` has
+the middle sensor's clock jump 20 s late at the batch's middle time, `drift10` drift to 10 s
+late by its end, and `jitter0.5` moves every detection's time by its own normal draw (0.5 s
+std: a gateway that stamps reports as it receives them). Field sensors that no GPS or NTP
+keeps in step drift by seconds; a time zone or daylight saving time set wrongly puts one an
+hour off.
 
 `--quiet` has the middle sensor stop reporting early (`firstN`: it keeps its first N reports)
 or start late (`lastN`: its last N), as a detector that fails, loses power or comes back
@@ -127,27 +130,33 @@ def load_case(
     return detections
 
 
-CLOCK = re.compile(r"(late|early|spread|step)(\d+(?:\.\d+)?)(first|last)?")
+CLOCK = re.compile(r"(late|early|spread|step|drift|jitter)(\d+(?:\.\d+)?)(first|last)?")
 
 
 def with_clock(detections: Detections, clock: str | None, seed: int) -> Detections:
     """The case as sensors whose clocks are off would report it (`--clock`): `lateS` / `earlyS`
     shift the middle sensor's timestamps by S seconds (`lateSfirst`, `lateSlast`: the first or
     last sensor's), `stepS` those after the batch's middle time alone (a clock that jumped S
-    seconds late while it reported), `spreadS` every sensor's by a normal draw of S seconds
-    (std) from `seed`; None leaves the case as it is."""
+    seconds late while it reported), `driftS` by a share of S growing from none at the batch's
+    first time to all of it at its last (a clock running fast), `spreadS` every sensor's by a
+    normal draw of S seconds (std) from `seed`, and `jitterS` every detection's by its own
+    (a gateway stamping each report when it receives it); None leaves the case as it is."""
     if clock is None:
         return detections
     match = CLOCK.fullmatch(clock)
     if match is None:
         raise ValueError(
-            f"--clock: expected lateS, earlyS, stepS or spreadS (S seconds), got {clock!r}"
+            f"--clock: expected lateS, earlyS, stepS, driftS, spreadS or jitterS (S seconds), "
+            f"got {clock!r}"
         )
     kind, seconds, which = match.group(1), float(match.group(2)), match.group(3)
     positions = np.unique(detections.position)
+    if kind in ("spread", "jitter") and which is not None:
+        raise ValueError(f"--clock: {kind}S moves every sensor's clock, got {clock!r}")
+    if kind == "jitter":
+        noise = np.random.default_rng(seed).normal(0.0, seconds, len(detections))
+        return dataclasses.replace(detections, timestamp=detections.timestamp + noise)
     if kind == "spread":
-        if which is not None:
-            raise ValueError(f"--clock: spreadS moves every sensor's clock, got {clock!r}")
         offsets = np.random.default_rng(seed).normal(0.0, seconds, positions.size)
     else:
         offsets = np.zeros(positions.size)
@@ -156,6 +165,9 @@ def with_clock(detections: Detections, clock: str | None, seed: int) -> Detectio
     shift = offsets[np.searchsorted(positions, detections.position)]
     if kind == "step":
         shift = np.where(detections.timestamp > np.median(detections.timestamp), shift, 0.0)
+    if kind == "drift":
+        first, last = detections.timestamp.min(), detections.timestamp.max()
+        shift = shift * (detections.timestamp - first) / max(last - first, 1e-9)
     return dataclasses.replace(detections, timestamp=detections.timestamp + shift)
 
 
@@ -163,7 +175,7 @@ def clock_option(value: str) -> str:
     """`--clock`'s value, checked before any case is simulated."""
     if CLOCK.fullmatch(value) is None:
         raise argparse.ArgumentTypeError(
-            f"expected lateS, earlyS, stepS or spreadS (S seconds): {value}"
+            f"expected lateS, earlyS, stepS, driftS, spreadS or jitterS (S seconds): {value}"
         )
     return value
 
@@ -341,7 +353,9 @@ def main() -> None:
         type=clock_option,
         help="Sensors' clocks off: lateS, earlyS (the middle sensor, S seconds; lateSfirst, "
         "lateSlast: the first or last), stepS (the middle sensor S seconds late from the "
-        "batch's middle time on) or spreadS (every sensor, S seconds std).",
+        "batch's middle time on), driftS (the middle sensor's clock drifting to S seconds late "
+        "by the batch's end), spreadS (every sensor, S seconds std) or jitterS (every "
+        "detection, S seconds std).",
     )
     parser.add_argument(
         "--quiet",

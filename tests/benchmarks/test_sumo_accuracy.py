@@ -90,6 +90,22 @@ def test_a_late_or_early_clock_shifts_the_middle_sensor_alone_and_a_spread_every
         bench.with_clock(d, "spread1last", seed=0)
 
 
+def test_a_drifting_clock_and_a_jitter_move_times_as_named():
+    d = Detections.from_columns(
+        np.repeat([0.0, 100.0, 200.0, 300.0, 400.0], 2), np.full(10, 20.0), np.arange(10.0)
+    )
+    drift = bench.with_clock(d, "drift9", seed=0).timestamp - d.timestamp
+    # Times 0-9: the middle sensor's reports at 4 and 5 s are 4 and 5 s late.
+    np.testing.assert_allclose(drift, np.where(d.position == 200, d.timestamp, 0.0))
+    jitter = bench.with_clock(d, "jitter0.5", seed=1).timestamp - d.timestamp
+    assert np.unique(jitter).size == 10 and 0.1 < jitter.std() < 1.0
+    np.testing.assert_array_equal(
+        jitter, bench.with_clock(d, "jitter0.5", seed=1).timestamp - d.timestamp
+    )
+    with pytest.raises(ValueError, match="every sensor"):
+        bench.with_clock(d, "jitter1first", seed=0)
+
+
 def test_a_clock_step_shifts_the_middle_sensor_after_the_batch_middle_time_alone():
     # Times 0-9, median 4.5: the middle sensor's reports at 4 and 5 s; only the one at 5 s moves.
     d = Detections.from_columns(
