@@ -65,10 +65,15 @@ def test_a_case_is_scored_as_detectors_reporting_all_none_or_the_lane_would_see_
     assert set(bench.FEATURE_SUFFIX) == {"all", "none", "lane"}
 
 
-def test_a_late_or_early_clock_shifts_the_middle_sensor_alone_and_a_spread_every_sensor():
-    d = Detections.from_columns(
+def five_sensors() -> Detections:
+    """Five sensors 100 m apart, two reports each at 20 m/s, stamped 0-9 s in road order."""
+    return Detections.from_columns(
         np.repeat([0.0, 100.0, 200.0, 300.0, 400.0], 2), np.full(10, 20.0), np.arange(10.0)
     )
+
+
+def test_a_late_or_early_clock_shifts_the_middle_sensor_alone_and_a_spread_every_sensor():
+    d = five_sensors()
     late = bench.with_clock(d, "late2", seed=0)
     np.testing.assert_array_equal(late.timestamp - d.timestamp, np.where(d.position == 200, 2, 0))
     early = bench.with_clock(d, "early0.5", seed=0)
@@ -91,9 +96,7 @@ def test_a_late_or_early_clock_shifts_the_middle_sensor_alone_and_a_spread_every
 
 
 def test_a_drifting_clock_and_a_jitter_move_times_as_named():
-    d = Detections.from_columns(
-        np.repeat([0.0, 100.0, 200.0, 300.0, 400.0], 2), np.full(10, 20.0), np.arange(10.0)
-    )
+    d = five_sensors()
     drift = bench.with_clock(d, "drift9", seed=0).timestamp - d.timestamp
     # Times 0-9: the middle sensor's reports at 4 and 5 s are 4 and 5 s late.
     np.testing.assert_allclose(drift, np.where(d.position == 200, d.timestamp, 0.0))
@@ -108,9 +111,7 @@ def test_a_drifting_clock_and_a_jitter_move_times_as_named():
 
 def test_a_clock_step_shifts_the_middle_sensor_after_the_batch_middle_time_alone():
     # Times 0-9, median 4.5: the middle sensor's reports at 4 and 5 s; only the one at 5 s moves.
-    d = Detections.from_columns(
-        np.repeat([0.0, 100.0, 200.0, 300.0, 400.0], 2), np.full(10, 20.0), np.arange(10.0)
-    )
+    d = five_sensors()
     step = bench.with_clock(d, "step20", seed=0).timestamp - d.timestamp
     np.testing.assert_array_equal(step, np.where((d.position == 200) & (d.timestamp > 4.5), 20, 0))
 
@@ -134,9 +135,7 @@ def test_a_quiet_middle_sensor_keeps_its_first_or_last_reports_alone():
 
 
 def test_a_speed_factor_scales_one_sensors_speeds_alone():
-    d = Detections.from_columns(
-        np.repeat([0.0, 100.0, 200.0, 300.0, 400.0], 2), np.full(10, 20.0), np.arange(10.0)
-    )
+    d = five_sensors()
     slow = bench.with_speed_factor(d, "0.7")
     np.testing.assert_allclose(slow.velocity, np.where(d.position == 200, 14.0, 20.0))
     np.testing.assert_array_equal(slow.timestamp, d.timestamp)

@@ -261,7 +261,10 @@ def test_a_faint_bias_either_side_is_no_calibration_without_the_median_speed():
     there is as slow as it reads, and the kinematic prediction stands."""
     faint = -np.log((1.0 + 1.0 / 0.7) / 2.0)
     confirmed = {1: (faint, 0.6), 2: (faint, 0.6)}
-    pairs = [lambda: None] * 4
+
+    def pairs(segment: int) -> None:  # no sampled pairs: the confirmed biases are all there is
+        return None
+
     assert calibration_biases(confirmed, np.zeros(4), np.full(5, 25.0), pairs, PARAMS) == {}
     medians = np.array([25.0, 25.0, 17.5, 25.0, 25.0])
     assert calibration_biases(confirmed, np.zeros(4), medians, pairs, PARAMS) == {

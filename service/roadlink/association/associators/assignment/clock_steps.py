@@ -48,7 +48,9 @@ from roadlink.association.associators.assignment.clocks import (
     Lag,
     Road,
     clear,
+    end_segments,
     neighbours_of,
+    on_time,
 )
 from roadlink.association.associators.assignment.far_clocks import far_offsets
 from roadlink.association.associators.assignment.params import FLOWING_SHARE
@@ -239,29 +241,23 @@ def _end_step_offsets(
     clock's (`Road.fits_as_clock`: every travel time longer by the same seconds, not by one
     factor as traffic that slows would make them); the neighbour's other segment on time in
     both halves (else the step may be the neighbour's)."""
-    n = halves[0][0].positions.size
-    segment, other, sign = (0, 1, -1.0) if k == 0 else (n - 2, n - 3, 1.0)
+    segment, other, sign = end_segments(k, halves[0][0].positions.size)
     shown = []
     for half, lags in halves:
         lag, beside = lags[segment], lags[other]
-        if lag is None or beside is None or not _on_time(beside.seconds, beside.bin_width):
+        if lag is None or beside is None or not on_time(beside):
             return None
         shown.append((half, lag))
     (first_half, first), (second_half, second) = shown
     width = max(first.bin_width, second.bin_width)
-    if _on_time(first.seconds, width) == _on_time(second.seconds, width):
+    if on_time(first, width) == on_time(second, width):
         return None
-    off_half, off = (second_half, second) if _on_time(first.seconds, width) else (first_half, first)
+    off_half, off = (second_half, second) if on_time(first, width) else (first_half, first)
     if not off_half.fits_as_clock(segment, off.seconds):
         return None
     if off is second:
         return 0.0, sign * (second.seconds - first.seconds), width, False
     return sign * (first.seconds - second.seconds), 0.0, width, False
-
-
-def _on_time(lag: float, width: float) -> bool:
-    """Whether a segment's lag (s) is within CLOCK_LEAST_BINS of its bins (`width`) of none."""
-    return abs(lag) < CLOCK_LEAST_BINS * width
 
 
 def _neighbours(k: int, n: int) -> list[int]:

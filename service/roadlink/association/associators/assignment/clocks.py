@@ -169,14 +169,24 @@ def end_offset(road: Road, lags: list[Lag | None], k: int) -> float | None:
     """The clock offset of the road's first (k = 0) or last sensor, from its one segment's lag
     (`lags`, every segment's), where that lag fits as a clock's (`Road.fits_as_clock`) and the
     neighbour's other segment is on time; else None."""
-    n = road.positions.size
-    segment, other, sign = (0, 1, -1.0) if k == 0 else (n - 2, n - 3, 1.0)
+    segment, other, sign = end_segments(k, road.positions.size)
     lag, beside = lags[segment], lags[other]
-    if lag is None or beside is None or abs(beside.seconds) >= CLOCK_LEAST_BINS * beside.bin_width:
-        return None
-    if abs(lag.seconds) < CLOCK_LEAST_BINS * lag.bin_width:
+    if lag is None or beside is None or not on_time(beside) or on_time(lag):
         return None
     return sign * lag.seconds if road.fits_as_clock(segment, lag.seconds) else None
+
+
+def end_segments(k: int, n: int) -> tuple[int, int, float]:
+    """Of the first (k = 0) or last of n sensors (n >= 3): its one segment, the neighbour's other
+    segment, and the sign its clock's offset gives that segment's lags (a late first sensor
+    shortens its travel times, a late last one lengthens them)."""
+    return (0, 1, -1.0) if k == 0 else (n - 2, n - 3, 1.0)
+
+
+def on_time(lag: Lag, width: float | None = None) -> bool:
+    """Whether a segment's lag is within CLOCK_LEAST_BINS of its bins (`width`, else its own)
+    of none."""
+    return abs(lag.seconds) < CLOCK_LEAST_BINS * (lag.bin_width if width is None else width)
 
 
 def clock_warnings(

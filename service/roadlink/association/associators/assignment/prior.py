@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,11 +93,12 @@ def segment_prior(s: Sensors, max_span: int, params: AssignmentParams) -> Segmen
         p = np.arange(n_sensors - span)
         return travel_time(s.positions[p + span] - s.positions[p], medians[p], medians[p + span])
 
+    def pairs(p: int) -> CandidatePairs | None:  # a handful of targets tests no calibration
+        return CandidatePairs.within_reach(s, samples[p], p + 1) if tested[p] else None
+
     one_segment = kinematic(1)
-    pairs = functools.partial(CandidatePairs.within_reach, s)
-    tested_samples = [a if tested[p] else a[:0] for p, a in enumerate(samples)]
     explained = explained_biases(
-        confirmed, log_bias[:-1, 1], one_segment, s.calibration_speed, pairs, tested_samples, params
+        confirmed, log_bias[:-1, 1], one_segment, s.calibration_speed, pairs, params
     )
     for segment, bias in explained.items():
         log_bias[segment, 1] = bias

@@ -27,9 +27,8 @@ matched, and kept where both save a fainter FAINT_BIAS_SAVING a detection (`cali
 
 from __future__ import annotations
 
-import functools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -71,7 +70,7 @@ SPEED_FACTOR_WARNING = 1.25
 if TYPE_CHECKING:
     from roadlink.association.associators.assignment.params import AssignmentParams
     from roadlink.association.associators.assignment.prior import CandidatePairs
-    from roadlink.association.detections import FloatArray, IntArray
+    from roadlink.association.detections import FloatArray
 
 
 def confirmed_bias(
@@ -182,8 +181,7 @@ def explained_biases(
     log_bias: FloatArray,
     seconds: FloatArray,
     median_speed: FloatArray,
-    pairs_of: Callable[[IntArray, int], CandidatePairs | None],
-    samples: list[IntArray],
+    pairs_of: Callable[[int], CandidatePairs | None],
     params: AssignmentParams,
 ) -> dict[int, float]:
     """The segments' weak biases (by segment) that a sensor's clock or its speeds' calibration
@@ -191,14 +189,12 @@ def explained_biases(
     detection; WEAK_BIAS_SAVING or more) that a neighbour mirrors (`clock_shifts`) or echoes
     (`scale_echoes`), and the pairs a sensor's calibration gives (`calibration_biases`). The
     segments' prior biases are `log_bias`, their typical travel times `seconds`, each sensor's
-    median speed `median_speed`, and each segment's pairs those of its sample's detections
-    (`samples`; empty where a handful of targets is no test of a sensor's calibration) to its
-    far sensor (`pairs_of(sample, far sensor)`), matched at `params`' spreads."""
+    median speed `median_speed`, and each segment's sampled pairs `pairs_of(segment)` (None
+    where they are no test of a sensor's calibration), matched at `params`' spreads."""
     weak = {p: bias for p, (bias, saving) in confirmed.items() if saving >= WEAK_BIAS_SAVING}
     explained = clock_shifts(weak, log_bias, seconds)
     explained.update(scale_echoes(weak, log_bias))
-    pairs = [functools.partial(pairs_of, sample, p + 1) for p, sample in enumerate(samples)]
-    explained.update(calibration_biases(confirmed, log_bias, median_speed, pairs, params))
+    explained.update(calibration_biases(confirmed, log_bias, median_speed, pairs_of, params))
     return explained
 
 
@@ -206,7 +202,7 @@ def calibration_biases(
     confirmed: dict[int, tuple[float, float]],
     log_bias: FloatArray,
     median_speed: FloatArray,
-    pairs_of: Sequence[Callable[[], CandidatePairs | None]],
+    pairs_of: Callable[[int], CandidatePairs | None],
     params: AssignmentParams,
 ) -> dict[int, float]:
     """The segments' biases where a sensor's speeds read some factor off (a loop's calibration):
@@ -214,8 +210,8 @@ def calibration_biases(
     (`log_bias` 0), where its median speed stands at least CALIBRATION_LEAST off its
     neighbours' (of `median_speed`, by sensor; NaN where a sensor's speeds tell nothing of its
     calibration), the biases that factor would give both segments
-    (`speed_factors` inverted), each matched near it (`confirmed_bias` of the segment's pairs,
-    `pairs_of[segment]()`, unless `confirmed` has it already: by segment, the bias and its
+    (`calibration_bias`), each matched near it (`confirmed_bias` of the segment's pairs,
+    `pairs_of(segment)`, unless `confirmed` has it already: by segment, the bias and its
     saving a detection) and kept where both save at least FAINT_BIAS_SAVING a detection, echo
     each other and put the factor as the median speed does (`off_as_factor`), where traffic
     flows at the sensor and both neighbours (`params.FLOWING_SHARE`). Traffic slower at a sensor
@@ -239,9 +235,9 @@ def calibration_biases(
             continue  # (NaN, a sensor whose speeds tell nothing, is never off)
         if not flowing[k - 1 : k + 2].all():
             continue
-        predicted = -float(np.log((1.0 + 1.0 / factor) / 2.0))
-        into = confirmed.get(k - 1) or _confirmed_near(pairs_of[k - 1](), predicted, params)
-        out_of = confirmed.get(k) or _confirmed_near(pairs_of[k](), predicted, params)
+        predicted = calibration_bias(factor)
+        into = confirmed.get(k - 1) or _confirmed_near(pairs_of(k - 1), predicted, params)
+        out_of = confirmed.get(k) or _confirmed_near(pairs_of(k), predicted, params)
         if into is None or out_of is None or not echo(into[0], out_of[0]):
             continue
         factor = float(speed_factors(np.array([into[0], out_of[0]]))[1])
@@ -255,11 +251,25 @@ def calibration_biases(
         factor = median_speed[k] / median_speed[beside]
         if not abs(np.log(factor)) >= np.log(CALIBRATION_LEAST) or not flowing[ends[k]].all():
             continue
-        predicted = -float(np.log((1.0 + 1.0 / factor) / 2.0))
-        found = confirmed.get(segment) or _confirmed_near(pairs_of[segment](), predicted, params)
+        predicted = calibration_bias(factor)
+        found = confirmed.get(segment) or _confirmed_near(pairs_of(segment), predicted, params)
         if found is not None and found[1] >= FAINT_BIAS_SAVING and echo(found[0], predicted):
             kept[segment] = found[0]
     return kept
+
+
+def calibration_bias(factor: float) -> float:
+    """The log bias of both segments of a sensor reading `factor` times the speed, at its speed
+    and its neighbour's alike: its kinematic prediction is (1 + 1 / factor) / 2 times the true."""
+    return -math.log((1.0 + 1.0 / factor) / 2.0)
+
+
+def factor_of_bias(bias: npt.ArrayLike) -> FloatArray:
+    """The speed factor that `calibration_bias` turns into `bias`, elementwise; 1 where none
+    does (a bias of log 2 or more: no factor lengthens a prediction to half)."""
+    half = 2.0 * np.exp(-np.asarray(bias, dtype=np.float64)) - 1.0
+    factor: FloatArray = np.where(half > 0, 1.0 / np.where(half > 0, half, 1.0), 1.0)
+    return factor
 
 
 def road_ends(n: int) -> dict[int, list[int]]:
@@ -299,9 +309,7 @@ def speed_factors(log_bias: FloatArray) -> FloatArray:
     1 / (2 e^-b - 1) at their mean b."""
     factor = np.ones(log_bias.size + 1)
     into, out_of = log_bias[:-1], log_bias[1:]
-    half = 2.0 * np.exp(-0.5 * (into + out_of)) - 1.0
-    known = echo(into, out_of) & (half > 0)
-    factor[1:-1] = np.where(known, 1.0 / np.where(known, half, 1.0), 1.0)
+    factor[1:-1] = np.where(echo(into, out_of), factor_of_bias(0.5 * (into + out_of)), 1.0)
     return factor
 
 
@@ -324,9 +332,8 @@ def speed_factor_warnings(
     if n >= 3:
         flowing = median_speed >= FLOWING_SHARE * median_speed.max()
         for k, segment, other in ((0, 0, 1), (n - 1, n - 2, n - 3)):
-            half = 2.0 * np.exp(-log_bias[segment]) - 1.0
-            read = half > 0 and log_bias[other] == 0.0 and flowing[road_ends(n)[k]].all()
-            factor[k] = 1.0 / half if read else 1.0
+            read = log_bias[other] == 0.0 and flowing[road_ends(n)[k]].all()
+            factor[k] = float(factor_of_bias(log_bias[segment])) if read else 1.0
     off = np.abs(np.log(factor)) >= np.log(SPEED_FACTOR_WARNING)
     for k in np.flatnonzero(off).tolist():
         if 0 < k < n - 1:
