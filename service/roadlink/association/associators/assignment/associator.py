@@ -14,6 +14,7 @@ from roadlink.association.associators.assignment.anchors import (
     weigh_anchors,
 )
 from roadlink.association.associators.assignment.arrays import filled, same
+from roadlink.association.associators.assignment.clock_drift import drift_warnings
 from roadlink.association.associators.assignment.clock_steps import step_warnings
 from roadlink.association.associators.assignment.clocks import clock_warnings
 from roadlink.association.associators.assignment.confidence import (
@@ -92,6 +93,7 @@ class AssignmentAssociator(Associator):
             *order_warnings(s.positions, s.swapped),
             *clock_warnings(s.positions, s.clock_offsets, s.stepped_sensors),
             *step_warnings(s.positions, s.clock_offsets, list(s.clock_steps)),
+            *drift_warnings(s.positions, list(s.clock_drifts)),
             *speed_factor_warnings(s.positions, prior.log_bias[:-1, 1], s.median_speed),
             *one_speed_warnings(s),
         )

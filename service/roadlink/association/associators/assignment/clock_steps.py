@@ -137,7 +137,7 @@ def _set_right_in_part(
     """Sensor k's step, where its clock was set right as a whole by `set_right` seconds, the
     offset of one part of the batch (the lags' highest peak, or the correlation's, was that
     part's), and its other part, before or after, fits its neighbours as reported."""
-    width = _bin_width(road.positions, speeds, k)
+    width = bin_width(road.positions, speeds, k)
     for before, after in ((-set_right, 0.0), (0.0, -set_right)):
         step = _placed(road, k, before, after, width)
         if step is not None:
@@ -145,11 +145,11 @@ def _set_right_in_part(
     return None
 
 
-def _bin_width(positions: FloatArray, speeds: list[FloatArray], k: int) -> float:
+def bin_width(positions: FloatArray, speeds: list[FloatArray], k: int) -> float:
     """The lags' bin width (`clocks.CLOCK_BIN_SHARE` of the typical travel time, at least
     `clocks.CLOCK_BIN_LEAST`) of sensor k's segments, their mean length at its median speed."""
     ends = positions[max(k - 1, 0)], positions[min(k + 1, positions.size - 1)]
-    gap = float(ends[1] - ends[0]) / len(_neighbours(k, positions.size))
+    gap = float(ends[1] - ends[0]) / len(neighbouring_sensors(k, positions.size))
     median_speed = float(np.median(speeds[k]))
     typical = float(travel_time(gap, median_speed, median_speed))
     return max(CLOCK_BIN_SHARE * typical, CLOCK_BIN_LEAST)
@@ -202,7 +202,7 @@ def _far_steps(
         for part in parts
     )
     return {
-        k: (float(first[k]), float(second[k]), _bin_width(positions, speeds, k), False)
+        k: (float(first[k]), float(second[k]), bin_width(positions, speeds, k), False)
         for k in np.flatnonzero((first == 0.0) != (second == 0.0)).tolist()
     }
 
@@ -260,7 +260,7 @@ def _end_step_offsets(
     return sign * (first.seconds - second.seconds), 0.0, width, False
 
 
-def _neighbours(k: int, n: int) -> list[int]:
+def neighbouring_sensors(k: int, n: int) -> list[int]:
     """Sensor k's neighbours, of n sensors in road order."""
     return [j for j in (k - 1, k + 1) if 0 <= j < n]
 
@@ -282,7 +282,7 @@ def _placed(road: Road, k: int, before: float, after: float, width: float) -> Cl
     misfit = _misfits(road, k, before, after, width)
     later = _split(road.times[k], before, after, misfit)
     fits = STEP_LEAST_SIDE <= later.size <= size - STEP_LEAST_SIDE
-    if fits and _fits(misfit, later, len(_neighbours(k, road.positions.size))):
+    if fits and _fits(misfit, later, len(neighbouring_sensors(k, road.positions.size))):
         return ClockStep(k, float(road.times[k][later[0]]), before, after, later)
     return None
 
@@ -370,7 +370,7 @@ def _misfit(road: Road, k: int, offset: float, width: float) -> FloatArray:
     headway or two off."""
     alone = 0.5 * CLOCK_CONFIRM_GATE
     total = np.zeros(road.times[k].size)
-    for j in _neighbours(k, road.positions.size):
+    for j in neighbouring_sensors(k, road.positions.size):
         which, _, cost = _nearby(road, k, j, offset, width)
         least = np.full(total.size, alone)
         np.minimum.at(least, which, cost)
@@ -402,11 +402,26 @@ def _nearby(
     which = np.repeat(np.arange(time.size), count)
     at = np.arange(which.size) + np.repeat(lo - (np.cumsum(count) - count), count)
     error = road.times[j][at] - expected[which]
-    change = np.log(road.speeds[j][at] / np.median(road.speeds[j])) - np.log(
-        speed[which] / np.median(speed)
+    return which, error, pair_cost(error, speed_change(road, k, j, which, at), width)
+
+
+def speed_change(road: Road, k: int, j: int, which: IntArray, at: IntArray) -> FloatArray:
+    """The change of speed from sensor k's detections `which` to neighbour j's `at`, each
+    reading against its sensor's median (log)."""
+    change: FloatArray = np.log(road.speeds[j][at] / np.median(road.speeds[j])) - np.log(
+        road.speeds[k][which] / np.median(road.speeds[k])
     )
-    cost = np.square(error / (CLOCK_CONFIRM_TIME * width)) + np.square(change / CLOCK_CONFIRM_SPEED)
-    return which, error, cost
+    return change
+
+
+def pair_cost(error: FloatArray, change: FloatArray, width: float) -> FloatArray:
+    """What a pair costs where its time error is `error` (s) and its speed change `change`: the
+    error in CLOCK_CONFIRM_TIME bins of `width` and the change in CLOCK_CONFIRM_SPEED, both
+    squared, as `Road.confirms` costs a pair."""
+    cost: FloatArray = np.square(error / (CLOCK_CONFIRM_TIME * width)) + np.square(
+        change / CLOCK_CONFIRM_SPEED
+    )
+    return cost
 
 
 def step_warnings(

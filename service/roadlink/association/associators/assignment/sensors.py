@@ -19,6 +19,7 @@ from roadlink.association.associators.assignment.robust import median
 from roadlink.association.detections import Detections, FloatArray, IntArray
 
 if TYPE_CHECKING:
+    from roadlink.association.associators.assignment.clock_drift import ClockDrift
     from roadlink.association.associators.assignment.clock_steps import ClockStep
 
 ComplexArray = npt.NDArray[np.complex128]
@@ -70,6 +71,7 @@ class Sensors:
     speed_floor: float = 0.0  # what `speed` is floored at: a speed there was read lower
     swapped: tuple[int, ...] = ()  # each k whose sensors k, k + 1 were exchanged (`sensor_order`)
     clock_steps: tuple[ClockStep, ...] = ()  # clocks that stepped while reporting (`clock_steps`)
+    clock_drifts: tuple[ClockDrift, ...] = ()  # clocks that drifted while reporting (`clock_drift`)
     _reaching: dict[int, tuple[IntArray, IntArray]] = field(default_factory=dict, repr=False)
     _starts: list[int] = field(default_factory=list, repr=False)  # `start` as Python ints
 
@@ -273,6 +275,7 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     # Where two sensors' positions are swapped, their detections are taken the other way
     # round; where a sensor's clock is off, its times are set right: the tracks are built on
     # them. (Both measure lags against this module's `travel_time`, hence imported here.)
+    from roadlink.association.associators.assignment.clock_drift import clock_drifts
     from roadlink.association.associators.assignment.clock_steps import clock_steps
     from roadlink.association.associators.assignment.clocks import clock_offsets
     from roadlink.association.associators.assignment.sensor_order import (
@@ -308,6 +311,17 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
             time[stepped] -= step.before
             time[stepped[step.later]] -= step.after - step.before
         order, start = _by_sensor_and_time(time, detections.velocity, sensor, positions.size)
+    drifts = clock_drifts(
+        positions,
+        [time[order[start[k] : start[k + 1]]] for k in range(positions.size)],
+        [speed[order[start[k] : start[k + 1]]] for k in range(positions.size)],
+    )
+    if drifts:
+        time = time.copy()
+        for drift in drifts:
+            drifted = order[start[drift.sensor] : start[drift.sensor + 1]]
+            time[drifted] -= drift.at(time[drifted])
+        order, start = _by_sensor_and_time(time, detections.velocity, sensor, positions.size)
     log_speed = np.log(speed)
     typical = np.array(
         [median(log_speed[order[start[k] : start[k + 1]]]) for k in range(positions.size)]
@@ -331,6 +345,7 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         floor,
         tuple(swapped),
         tuple(steps),
+        tuple(drifts),
     )
 
 

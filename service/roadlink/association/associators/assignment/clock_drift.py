@@ -1,0 +1,303 @@
+"""Sensors' clocks that drift while they report, followed over the batch and set right before
+anything is linked.
+
+`clocks` takes one offset a sensor and `clock_steps` one jump. A clock that runs fast or slow
+drifts: a crystal 0.01 % off gains nine seconds a day, and a detector whose time server
+corrects it now and then drifts and steps in turn. Whatever single offset or step is taken,
+part of the batch is left seconds off (SUMO's dense motorway without lane and length, the
+middle sensor's clock drifting to 10 s late over the batch, five seeds: 74.0 % of the
+detections right, 91.8 % on time).
+
+So, once the clocks are set right as a whole and at their steps, each sensor between two
+others (where traffic flows at the three) is followed over the batch. A sample of its
+detections, away from the batch's edges, is scored at every offset of a grid by how well each
+detection then fits its neighbours: its best pair at each neighbouring sensor where its own
+speed says it would be, as `clock_steps` scores a step (`misfit_grid`). The clock's offset over
+the batch is the path through the grid, detection after detection in time order, whose misfits
+plus a price for every bin it moves are least, moving one way only: a clock that runs fast
+keeps gaining, and a path free to turn back would follow the comb of dense traffic's
+neighbouring vehicles from one detection to the next (`least_path`, a Viterbi over the grid).
+It is taken where it fits clearly better than any single offset (DRIFT_SAVING a sampled
+detection), each of the sensor's two segments better than as reported (a neighbour's drift
+moves one segment; the sensor's own, both), and moves by CLOCK_LEAST_BINS or more; each
+detection is then set right by the path's offset at its time, carried on at the path's slope
+beyond the sample. The clearest first, the others followed again on the times it set right.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from roadlink.association.associators.assignment.clock_steps import (
+    STEP_FIT_BINS,
+    bin_width,
+    neighbouring_sensors,
+    pair_cost,
+    speed_change,
+)
+from roadlink.association.associators.assignment.clocks import (
+    CLOCK_CONFIRM_GATE,
+    CLOCK_CONFIRM_SAVING,
+    CLOCK_LEAST_BINS,
+    CLOCK_LEAST_DETECTIONS,
+    CLOCK_SAMPLE,
+    Road,
+    neighbours_of,
+)
+from roadlink.association.associators.assignment.params import FLOWING_SHARE
+from roadlink.association.detections import FloatArray, IntArray
+
+# The offsets searched either side of the times as set right so far: this many of the lags'
+# bins (a bin is 5 % of a travel time: one and a half travel times).
+DRIFT_REACH_BINS = 30
+# The grid's step, in bins.
+DRIFT_GRID_STEP = 0.5
+# What the path pays for moving by one bin: half of what leaving a detection alone at its two
+# neighbours costs, so that no handful of detections pulls it off, and a drift of twenty bins
+# pays for itself over a few dozen.
+DRIFT_MOVE_COST = 0.5 * CLOCK_CONFIRM_GATE
+# What the path must save against the best single offset, a sampled detection (twice what
+# `clocks` asks of a small offset). On 395 exported on-time SUMO cases (the main, validation,
+# speed-noise and fault groups, with lane and length and without) no sensor's path saves more
+# than 0.79 (dense traffic whose speeds are read with an 8 % error: the misfits' speed term
+# expects 5 %); a clock drifting 10 s over the batch saves 1.5-5.9.
+DRIFT_SAVING = 2.0 * CLOCK_CONFIRM_SAVING
+
+
+@dataclass(frozen=True)
+class ClockDrift:
+    """Sensor `sensor`'s clock, once set right as a whole and at any step, was still
+    `offset[i]` seconds late about its report stamped `time[i]` (ascending; linear between)."""
+
+    sensor: int
+    time: FloatArray = field(repr=False)
+    offset: FloatArray = field(repr=False)
+
+    def at(self, times: FloatArray) -> FloatArray:
+        """The offset (s) at each of `times`: the path's between its first and last sample;
+        before and after them, carried on at the slope of its outer fifth (the sample keeps
+        away from the batch's edges, and a clock that drifts drifts on)."""
+        offset = np.interp(times, self.time, self.offset)
+        outer = max(1, self.time.size // 5)
+        for end, inner, side in ((0, outer, -1.0), (-1, -1 - outer, 1.0)):
+            span = float(self.time[end] - self.time[inner])
+            slope = float(self.offset[end] - self.offset[inner]) / span if span else 0.0
+            beyond = side * (times - self.time[end]) > 0
+            offset[beyond] = self.offset[end] + slope * (times[beyond] - self.time[end])
+        return offset
+
+
+def clock_drifts(
+    positions: FloatArray, times: list[FloatArray], speeds: list[FloatArray]
+) -> list[ClockDrift]:
+    """The sensors whose clocks drift over the batch, each sensor's detection times (ascending,
+    set right as a whole and at their steps) and speeds given in road order; the clearest
+    first, its neighbours followed again on the times it set right."""
+    n = positions.size
+    if n < 3:
+        return []
+    typical = np.array([np.median(v) if v.size else 0.0 for v in speeds])
+    flowing = typical >= FLOWING_SHARE * typical.max()
+    times = list(times)
+    followed = [
+        k
+        for k in range(1, n - 1)
+        if flowing[k - 1 : k + 2].all()
+        and min(times[j].size for j in (k - 1, k, k + 1)) >= CLOCK_LEAST_DETECTIONS
+    ]
+    drifts: list[ClockDrift] = []
+    while followed:
+        found = _drifts(Road(positions, times, speeds), followed)
+        if not found:
+            break
+        drift, _ = max(found, key=lambda item: item[1])
+        drifts.append(drift)
+        times[drift.sensor] = times[drift.sensor] - drift.at(times[drift.sensor])
+        followed.remove(drift.sensor)
+    return drifts
+
+
+@dataclass(frozen=True)
+class _Followed:
+    """A sensor's sampled detections (places in time order), the offsets of its grid, and each
+    sampled detection's misfit at each neighbour and each offset ([detection, offset])."""
+
+    sensor: int
+    sample: IntArray
+    grid: FloatArray
+    width: float
+    sides: list[FloatArray]
+
+    @property
+    def misfit(self) -> FloatArray:
+        total: FloatArray = self.sides[0] + self.sides[1]
+        return total
+
+
+def _drifts(road: Road, followed: list[int]) -> list[tuple[ClockDrift, float]]:
+    """The drifts of the `followed` sensors whose paths stand out (see the module's docstring),
+    each with what it saves against the sensor's times as they are. Every sensor's path is
+    found at once (`least_paths`), but for those whose misfits could not stand out on any path:
+    each detection at its own best offset, with nothing paid for moving, saves too little
+    against the best single offset."""
+    candidates = []
+    for k in followed:
+        width = bin_width(road.positions, road.speeds, k)
+        sample = _sample(road, k, width)
+        if sample.size < CLOCK_LEAST_DETECTIONS:
+            continue
+        # No path saves more than the misfits at the times as they are (a single offset):
+        # where they are small already (the paper's traffic on time: 0.7-0.8 a detection),
+        # the grid is not worked out.
+        as_is = misfit_grid(road, k, np.array([0.0, width]), width, sample)
+        if sum(float(side[:, 0].sum()) for side in as_is) < DRIFT_SAVING * sample.size:
+            continue
+        steps = DRIFT_REACH_BINS / DRIFT_GRID_STEP
+        grid = width * DRIFT_GRID_STEP * np.arange(-steps, steps + 1)
+        one = _Followed(k, sample, grid, width, misfit_grid(road, k, grid, width, sample))
+        misfit = one.misfit
+        if misfit.min(axis=1).sum() <= misfit.sum(axis=0).min() - DRIFT_SAVING * sample.size:
+            candidates.append(one)
+    if not candidates:
+        return []
+    paths, totals = least_paths(
+        [one.misfit for one in candidates], DRIFT_MOVE_COST * DRIFT_GRID_STEP
+    )
+    drifts = []
+    for one, path, total in zip(candidates, paths, totals, strict=True):
+        drift = _drift(road, one, path, total)
+        if drift is not None:
+            drifts.append(drift)
+    return drifts
+
+
+def _drift(
+    road: Road, one: _Followed, path: IntArray, total: float
+) -> tuple[ClockDrift, float] | None:
+    """The drift `path` follows (with its `total` cost), and what it saves against the times
+    as they are, where it stands out."""
+    misfit, sample, sides = one.misfit, one.sample, one.sides
+    offset = one.grid[path]
+    saving = DRIFT_SAVING * sample.size
+    if offset.max() - offset.min() < CLOCK_LEAST_BINS * one.width:
+        return None
+    if total > float(misfit.sum(axis=0).min()) - saving:
+        return None
+    on_time = int(np.argmin(np.abs(one.grid)))
+    taken = np.arange(sample.size), path
+    if any(side[taken].sum() > side[:, on_time].sum() - 0.5 * saving for side in sides):
+        return None
+    as_is = float(misfit[:, on_time].sum())
+    return ClockDrift(one.sensor, road.times[one.sensor][sample], offset), as_is - total
+
+
+def _sample(road: Road, k: int, width: float) -> IntArray:
+    """Up to CLOCK_SAMPLE of sensor k's detections (places in time order), evenly spread, each
+    far enough inside the batch that its neighbours' detections lie in it at any offset of the
+    grid."""
+    time, speed = road.times[k], float(np.median(road.speeds[k]))
+    travel = max(abs(float(road.positions[j] - road.positions[k])) for j in (k - 1, k + 1))
+    edge = travel / speed + DRIFT_REACH_BINS * width
+    first = min(float(t[0]) for t in road.times if t.size)
+    last = max(float(t[-1]) for t in road.times if t.size)
+    inner = np.flatnonzero((time > first + edge) & (time < last - edge))
+    picked = np.linspace(0, inner.size - 1, min(inner.size, CLOCK_SAMPLE)).astype(np.int64)
+    return inner[np.unique(picked)]
+
+
+def misfit_grid(
+    road: Road, k: int, offsets: FloatArray, width: float, sample: IntArray
+) -> list[FloatArray]:
+    """For each neighbour of sensor k, the misfit of each of its detections `sample` (places
+    in time order) at each of `offsets` (ascending, evenly spaced), [detection, offset]: the
+    least cost of a pair with the neighbour's detections where its own speed says it would be,
+    as `clock_steps` costs one at one offset, at most half of CLOCK_CONFIRM_GATE (what leaving
+    it alone costs). Each pair is found once over the span of offsets and costed at those that
+    bring it within STEP_FIT_BINS bins."""
+    step = float(offsets[1] - offsets[0])
+    reach = STEP_FIT_BINS * width
+    time, speed = road.times[k][sample], road.speeds[k][sample]
+    sides = []
+    for j in neighbouring_sensors(k, road.positions.size):
+        expected = time + (road.positions[j] - road.positions[k]) / speed
+        lo = np.searchsorted(road.times[j], expected - offsets[-1] - reach)
+        count = np.searchsorted(road.times[j], expected - offsets[0] + reach) - lo
+        which = np.repeat(np.arange(time.size), count)
+        at = np.arange(which.size) + np.repeat(lo - (np.cumsum(count) - count), count)
+        # With the sensor's clock d seconds late, a pair's time error is error + d.
+        error = road.times[j][at] - expected[which]
+        change = speed_change(road, k, j, sample[which], at)
+        first = np.maximum(np.ceil((-error - reach - offsets[0]) / step).astype(np.int64), 0)
+        last = np.minimum(
+            np.floor((-error + reach - offsets[0]) / step).astype(np.int64), offsets.size - 1
+        )
+        count = np.maximum(last - first + 1, 0)
+        pair = np.repeat(np.arange(which.size), count)
+        column = np.arange(pair.size) + np.repeat(first - (np.cumsum(count) - count), count)
+        cost = pair_cost(error[pair] + offsets[column], change[pair], width)
+        least = np.full((sample.size, offsets.size), 0.5 * CLOCK_CONFIRM_GATE)
+        np.minimum.at(least, (which[pair], column), cost)
+        sides.append(least)
+    return sides
+
+
+def least_paths(costs: list[FloatArray], move: float) -> tuple[list[IntArray], list[float]]:
+    """For each of `costs` ([step, state]), the path through it that only rises or only falls,
+    whose costs plus `move` per state moved are least: each step's state, and the path's total.
+
+    A Viterbi over every cost at once (each padded to the most steps with steps of no cost,
+    where a path stays for nothing), falling paths as rising ones through the states reversed.
+    With the price linear in the distance, the least arrival at state s from below is a running
+    minimum of best[j] - move * j over j <= s, plus move * s; the path is read back from the
+    stored bests."""
+    steps = max(cost.shape[0] for cost in costs)
+    states = costs[0].shape[1]
+    stacked = np.zeros((2 * len(costs), steps, states))
+    for c, cost in enumerate(costs):
+        stacked[2 * c, : cost.shape[0]] = cost
+        stacked[2 * c + 1, : cost.shape[0]] = cost[:, ::-1]
+    ramp = move * np.arange(states)
+    best = np.empty_like(stacked)
+    best[:, 0] = stacked[:, 0]
+    for i in range(1, steps):
+        arrival = np.minimum.accumulate(best[:, i - 1] - ramp, axis=1)
+        np.add(arrival, ramp, out=arrival)
+        np.add(arrival, stacked[:, i], out=best[:, i])
+    rows = np.arange(stacked.shape[0])
+    path = np.empty((stacked.shape[0], steps), dtype=np.int64)
+    path[:, -1] = np.argmin(best[:, -1], axis=1)
+    above = np.arange(states)[None, :]
+    for i in range(steps - 1, 0, -1):
+        # The predecessor: the least of best[j] - move * j over j at or below the state.
+        lowered = best[:, i - 1] - ramp
+        lowered[above > path[:, i][:, None]] = np.inf
+        path[:, i - 1] = np.argmin(lowered, axis=1)
+    totals = best[rows, -1, path[:, -1]]
+    paths, chosen_totals = [], []
+    for c, cost in enumerate(costs):
+        way = int(np.argmin(totals[2 * c : 2 * c + 2]))
+        found = path[2 * c + way, : cost.shape[0]]
+        paths.append(found if way == 0 else states - 1 - found)
+        chosen_totals.append(float(totals[2 * c + way]))
+    return paths, chosen_totals
+
+
+def drift_warnings(positions: FloatArray, drifts: list[ClockDrift]) -> list[str]:
+    """A sentence for each sensor whose clock drifted, for whoever keeps the detector's clock."""
+    n = positions.size
+    return [
+        f"the sensor at position {positions[drift.sensor]:g} stamps its detections "
+        f"{_lateness(float(drift.offset[0]))} than {neighbours_of(drift.sensor, n)} about "
+        f"its report stamped {drift.time[0]:g}, and {_lateness(float(drift.offset[-1]))} "
+        f"about its report stamped {drift.time[-1]:g}: its clock drifts; its times were set "
+        "right for the association"
+        for drift in drifts
+    ]
+
+
+def _lateness(seconds: float) -> str:
+    if abs(seconds) < 0.05:
+        return "no later or earlier"
+    return f"{abs(seconds):.1f} s {'later' if seconds > 0 else 'earlier'}"
