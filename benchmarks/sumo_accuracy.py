@@ -62,6 +62,7 @@ import json
 import multiprocessing
 import re
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -133,6 +134,20 @@ def load_case(
 CLOCK = re.compile(r"(late|early|spread|step|drift|jitter)(\d+(?:\.\d+)?)(first|last)?")
 
 
+def parse_clock(clock: str) -> tuple[str, float, str | None]:
+    """`--clock`'s value as (kind, seconds, the sensor: 'first', 'last' or None for the middle);
+    ValueError saying what is expected where it is none."""
+    match = CLOCK.fullmatch(clock)
+    if match is None:
+        raise ValueError(
+            f"expected lateS, earlyS, stepS, driftS, spreadS or jitterS (S seconds), got {clock!r}"
+        )
+    kind, seconds, which = match.group(1), float(match.group(2)), match.group(3)
+    if kind in ("spread", "jitter") and which is not None:
+        raise ValueError(f"{kind}S moves every sensor's clock, got {clock!r}")
+    return kind, seconds, which
+
+
 def with_clock(detections: Detections, clock: str | None, seed: int) -> Detections:
     """The case as sensors whose clocks are off would report it (`--clock`): `lateS` / `earlyS`
     shift the middle sensor's timestamps by S seconds (`lateSfirst`, `lateSlast`: the first or
@@ -143,16 +158,8 @@ def with_clock(detections: Detections, clock: str | None, seed: int) -> Detectio
     (a gateway stamping each report when it receives it); None leaves the case as it is."""
     if clock is None:
         return detections
-    match = CLOCK.fullmatch(clock)
-    if match is None:
-        raise ValueError(
-            f"--clock: expected lateS, earlyS, stepS, driftS, spreadS or jitterS (S seconds), "
-            f"got {clock!r}"
-        )
-    kind, seconds, which = match.group(1), float(match.group(2)), match.group(3)
+    kind, seconds, which = parse_clock(clock)
     positions = np.unique(detections.position)
-    if kind in ("spread", "jitter") and which is not None:
-        raise ValueError(f"--clock: {kind}S moves every sensor's clock, got {clock!r}")
     if kind == "jitter":
         noise = np.random.default_rng(seed).normal(0.0, seconds, len(detections))
         return dataclasses.replace(detections, timestamp=detections.timestamp + noise)
@@ -171,15 +178,6 @@ def with_clock(detections: Detections, clock: str | None, seed: int) -> Detectio
     return dataclasses.replace(detections, timestamp=detections.timestamp + shift)
 
 
-def clock_option(value: str) -> str:
-    """`--clock`'s value, checked before any case is simulated."""
-    if CLOCK.fullmatch(value) is None:
-        raise argparse.ArgumentTypeError(
-            f"expected lateS, earlyS, stepS, driftS, spreadS or jitterS (S seconds): {value}"
-        )
-    return value
-
-
 QUIET = re.compile(r"(first|last)(\d+)")
 
 
@@ -188,10 +186,7 @@ def with_quiet(detections: Detections, quiet: str | None) -> Detections:
     kept) or started late (`lastN`) would report it (`--quiet`); None leaves it as it is."""
     if quiet is None:
         return detections
-    match = QUIET.fullmatch(quiet)
-    if match is None:
-        raise ValueError(f"--quiet: expected firstN or lastN (N reports), got {quiet!r}")
-    kind, keep = match.group(1), int(match.group(2))
+    kind, keep = parse_quiet(quiet)
     positions = np.unique(detections.position)
     at = np.flatnonzero(detections.position == positions[positions.size // 2])
     by_time = at[np.argsort(detections.timestamp[at], kind="stable")]
@@ -199,11 +194,12 @@ def with_quiet(detections: Detections, quiet: str | None) -> Detections:
     return detections.take(np.setdiff1d(np.arange(len(detections)), dropped))
 
 
-def quiet_option(value: str) -> str:
-    """`--quiet`'s value, checked before any case is simulated."""
-    if QUIET.fullmatch(value) is None:
-        raise argparse.ArgumentTypeError(f"expected firstN or lastN (N reports): {value}")
-    return value
+def parse_quiet(quiet: str) -> tuple[str, int]:
+    """`--quiet`'s value as ('first' or 'last', the reports kept)."""
+    match = QUIET.fullmatch(quiet)
+    if match is None:
+        raise ValueError(f"expected firstN or lastN (N reports), got {quiet!r}")
+    return match.group(1), int(match.group(2))
 
 
 SPEED_FACTOR = re.compile(r"(\d+(?:\.\d+)?)(first|last)?")
@@ -214,22 +210,35 @@ def with_speed_factor(detections: Detections, factor: str | None) -> Detections:
     `factor` times it is would report it (`--speed-factor`); None leaves it as it is."""
     if factor is None:
         return detections
-    match = SPEED_FACTOR.fullmatch(factor)
-    if match is None or float(match.group(1)) <= 0:
-        raise ValueError(f"--speed-factor: expected F, Ffirst or Flast (F > 0), got {factor!r}")
+    times, which = parse_speed_factor(factor)
     positions = np.unique(detections.position)
-    sensor = {"first": 0, "last": -1, None: positions.size // 2}[match.group(2)]
+    sensor = {"first": 0, "last": -1, None: positions.size // 2}[which]
     at = detections.position == positions[sensor]
-    velocity = np.where(at, float(match.group(1)) * detections.velocity, detections.velocity)
+    velocity = np.where(at, times * detections.velocity, detections.velocity)
     return dataclasses.replace(detections, velocity=velocity)
 
 
-def speed_factor_option(value: str) -> str:
-    """`--speed-factor`'s value, checked before any case is simulated."""
-    match = SPEED_FACTOR.fullmatch(value)
+def parse_speed_factor(factor: str) -> tuple[float, str | None]:
+    """`--speed-factor`'s value as (the factor, the sensor: 'first', 'last' or None for the
+    middle)."""
+    match = SPEED_FACTOR.fullmatch(factor)
     if match is None or float(match.group(1)) <= 0:
-        raise argparse.ArgumentTypeError(f"expected F, Ffirst or Flast (F > 0): {value}")
-    return value
+        raise ValueError(f"expected F, Ffirst or Flast (F > 0), got {factor!r}")
+    return float(match.group(1)), match.group(2)
+
+
+def checked(parse: Callable[[str], object]) -> Callable[[str], str]:
+    """An option's argparse type: its value checked by `parse` before any case is simulated
+    (its error said as argparse says one), and kept as given."""
+
+    def check(value: str) -> str:
+        try:
+            parse(value)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+        return value
+
+    return check
 
 
 # A speed in m/s is this many of each unit (`--whole-speeds`).
@@ -350,7 +359,7 @@ def main() -> None:
     )
     parser.add_argument(
         "--clock",
-        type=clock_option,
+        type=checked(parse_clock),
         help="Sensors' clocks off: lateS, earlyS (the middle sensor, S seconds; lateSfirst, "
         "lateSlast: the first or last), stepS (the middle sensor S seconds late from the "
         "batch's middle time on), driftS (the middle sensor's clock drifting to S seconds late "
@@ -359,13 +368,13 @@ def main() -> None:
     )
     parser.add_argument(
         "--quiet",
-        type=quiet_option,
+        type=checked(parse_quiet),
         help="The middle sensor stops reporting early (firstN: keeps its first N reports) or "
         "starts late (lastN).",
     )
     parser.add_argument(
         "--speed-factor",
-        type=speed_factor_option,
+        type=checked(parse_speed_factor),
         help="The middle sensor reads every speed F times what it is (Ffirst, Flast: the first "
         "or last sensor).",
     )

@@ -1,6 +1,7 @@
 """benchmarks/sumo_accuracy.py: its scenario groups, and that the speed-noise variants add a
 speed error and nothing else."""
 
+import argparse
 import re
 
 import numpy as np
@@ -143,7 +144,7 @@ def test_a_speed_factor_scales_one_sensors_speeds_alone():
     np.testing.assert_allclose(fast.velocity, np.where(d.position == 400, 30.0, 20.0))
     assert bench.with_speed_factor(d, None) is d
     for wrong in ("0", "fast", "0.7middle"):
-        with pytest.raises(ValueError, match="speed-factor"):
+        with pytest.raises(ValueError, match="Ffirst or Flast"):
             bench.with_speed_factor(d, wrong)
 
 
@@ -156,3 +157,21 @@ def test_coarse_readings_stamp_whole_steps_and_read_whole_units():
     np.testing.assert_array_equal(kmh.timestamp, d.timestamp)
     mph = bench.with_readings(d, None, "mph").velocity / 0.44704
     np.testing.assert_allclose(mph, [22.0, 62.0, 1.0])
+
+
+@pytest.mark.parametrize(
+    ("parse", "good", "bad", "says"),
+    [
+        (bench.parse_clock, "late20first", "slow2", "lateS"),
+        # Accepted by the pattern, but no one sensor's clock moves every sensor's.
+        (bench.parse_clock, "drift10", "spread1last", "every sensor"),
+        (bench.parse_quiet, "first10", "early2", "firstN"),
+        (bench.parse_speed_factor, "0.7last", "0", "F > 0"),
+    ],
+)
+def test_a_fault_option_is_checked_as_it_is_read(parse, good, bad, says):
+    # Before any case is simulated: argparse reports the error and exits.
+    check = bench.checked(parse)
+    assert check(good) == good
+    with pytest.raises(argparse.ArgumentTypeError, match=says):
+        check(bad)
