@@ -138,28 +138,9 @@ class _Followed:
 
 def _drifts(road: Road, followed: list[int]) -> list[tuple[ClockDrift, float]]:
     """The drifts of the `followed` sensors whose paths stand out (see the module's docstring),
-    each with what it saves against the sensor's times as they are. Every sensor's path is
-    found at once (`least_paths`), but for those whose misfits could not stand out on any path:
-    each detection at its own best offset, with nothing paid for moving, saves too little
-    against the best single offset."""
-    candidates = []
-    for k in followed:
-        width = bin_width(road.positions, road.speeds, k)
-        sample = _sample(road, k, width)
-        if sample.size < CLOCK_LEAST_DETECTIONS:
-            continue
-        # No path saves more than the misfits at the times as they are (a single offset):
-        # where they are small already (the paper's traffic on time: 0.7-0.8 a detection),
-        # the grid is not worked out.
-        as_is = misfit_grid(road, k, np.array([0.0, width]), width, sample)
-        if sum(float(side[:, 0].sum()) for side in as_is) < DRIFT_SAVING * sample.size:
-            continue
-        steps = DRIFT_REACH_BINS / DRIFT_GRID_STEP
-        grid = width * DRIFT_GRID_STEP * np.arange(-steps, steps + 1)
-        one = _Followed(k, sample, grid, width, misfit_grid(road, k, grid, width, sample))
-        misfit = one.misfit
-        if misfit.min(axis=1).sum() <= misfit.sum(axis=0).min() - DRIFT_SAVING * sample.size:
-            candidates.append(one)
+    each with what it saves against the sensor's times as they are; every sensor's path found
+    at once (`least_paths`)."""
+    candidates = [one for k in followed if (one := _followed(road, k)) is not None]
     if not candidates:
         return []
     paths, totals = least_paths(
@@ -171,6 +152,30 @@ def _drifts(road: Road, followed: list[int]) -> list[tuple[ClockDrift, float]]:
         if drift is not None:
             drifts.append(drift)
     return drifts
+
+
+def _followed(road: Road, k: int) -> _Followed | None:
+    """Sensor k's sample and misfits on the grid; None where no path could stand out: each
+    detection at its own best offset, with nothing paid for moving, saves too little against
+    the best single offset."""
+    width = bin_width(road.positions, road.speeds, k)
+    sample = _sample(road, k, width)
+    if sample.size < CLOCK_LEAST_DETECTIONS:
+        return None
+    saving = DRIFT_SAVING * sample.size
+    # No path saves more than the misfits at the times as they are (a single offset): where
+    # they are small already (the paper's traffic on time: 0.7-0.8 a detection), the grid is
+    # not worked out.
+    as_is = misfit_grid(road, k, np.array([0.0, width]), width, sample)
+    if sum(float(side[:, 0].sum()) for side in as_is) < saving:
+        return None
+    steps = DRIFT_REACH_BINS / DRIFT_GRID_STEP
+    grid = width * DRIFT_GRID_STEP * np.arange(-steps, steps + 1)
+    one = _Followed(k, sample, grid, width, misfit_grid(road, k, grid, width, sample))
+    misfit = one.misfit
+    if misfit.min(axis=1).sum() > misfit.sum(axis=0).min() - saving:
+        return None
+    return one
 
 
 def _drift(
