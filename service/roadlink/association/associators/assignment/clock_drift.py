@@ -16,7 +16,7 @@ speed says it would be, as `clock_steps` scores a step (`misfit_grid`). The cloc
 the batch is the path through the grid, detection after detection in time order, whose misfits
 plus a price for every bin it moves are least, moving one way only: a clock that runs fast
 keeps gaining, and a path free to turn back would follow the comb of dense traffic's
-neighbouring vehicles from one detection to the next (`least_path`, a Viterbi over the grid).
+neighbouring vehicles from one detection to the next (`least_paths`, a Viterbi over the grid).
 It is taken where it fits clearly better than any single offset (DRIFT_SAVING a sampled
 detection), each of the sensor's two segments better than as reported (a neighbour's drift
 moves one segment; the sensor's own, both), and moves by CLOCK_LEAST_BINS or more; each
@@ -59,7 +59,7 @@ DRIFT_GRID_STEP = 0.5
 # pays for itself over a few dozen.
 DRIFT_MOVE_COST = 0.5 * CLOCK_CONFIRM_GATE
 # What the path must save against the best single offset, a sampled detection (twice what
-# `clocks` asks of a small offset). On 395 exported on-time SUMO cases (the main, validation,
+# `clocks` asks of a small offset). On 350 exported on-time SUMO cases (the main, validation,
 # speed-noise and fault groups, with lane and length and without) no sensor's path saves more
 # than 0.79 (dense traffic whose speeds are read with an 8 % error: the misfits' speed term
 # expects 5 %); a clock drifting 10 s over the batch saves 1.5-5.9.
@@ -122,18 +122,15 @@ def clock_drifts(
 @dataclass(frozen=True)
 class _Followed:
     """A sensor's sampled detections (places in time order), the offsets of its grid, and each
-    sampled detection's misfit at each neighbour and each offset ([detection, offset])."""
+    sampled detection's misfit at each neighbour and each offset ([detection, offset]), and at
+    both together (`misfit`)."""
 
     sensor: int
     sample: IntArray
     grid: FloatArray
     width: float
     sides: list[FloatArray]
-
-    @property
-    def misfit(self) -> FloatArray:
-        total: FloatArray = self.sides[0] + self.sides[1]
-        return total
+    misfit: FloatArray
 
 
 def _drifts(road: Road, followed: list[int]) -> list[tuple[ClockDrift, float]]:
@@ -171,11 +168,11 @@ def _followed(road: Road, k: int) -> _Followed | None:
         return None
     steps = DRIFT_REACH_BINS / DRIFT_GRID_STEP
     grid = width * DRIFT_GRID_STEP * np.arange(-steps, steps + 1)
-    one = _Followed(k, sample, grid, width, misfit_grid(road, k, grid, width, sample))
-    misfit = one.misfit
+    sides = misfit_grid(road, k, grid, width, sample)
+    misfit = sides[0] + sides[1]
     if misfit.min(axis=1).sum() > misfit.sum(axis=0).min() - saving:
         return None
-    return one
+    return _Followed(k, sample, grid, width, sides, misfit)
 
 
 def _drift(
@@ -238,9 +235,9 @@ def misfit_grid(
         last = np.minimum(
             np.floor((-error + reach - offsets[0]) / step).astype(np.int64), offsets.size - 1
         )
-        count = np.maximum(last - first + 1, 0)
-        pair = np.repeat(np.arange(which.size), count)
-        column = np.arange(pair.size) + np.repeat(first - (np.cumsum(count) - count), count)
+        columns = np.maximum(last - first + 1, 0)
+        pair = np.repeat(np.arange(which.size), columns)
+        column = np.arange(pair.size) + np.repeat(first - (np.cumsum(columns) - columns), columns)
         cost = pair_cost(error[pair] + offsets[column], change[pair], width)
         least = np.full((sample.size, offsets.size), 0.5 * CLOCK_CONFIRM_GATE)
         np.minimum.at(least, (which[pair], column), cost)
@@ -249,8 +246,9 @@ def misfit_grid(
 
 
 def least_paths(costs: list[FloatArray], move: float) -> tuple[list[IntArray], list[float]]:
-    """For each of `costs` ([step, state]), the path through it that only rises or only falls,
-    whose costs plus `move` per state moved are least: each step's state, and the path's total.
+    """For each of `costs` ([step, state], as many states each), the path through it that only
+    rises or only falls whose costs plus `move` per state moved are least: each step's state,
+    and the path's total.
 
     A Viterbi over every cost at once (each padded to the most steps with steps of no cost,
     where a path stays for nothing), falling paths as rising ones through the states reversed.

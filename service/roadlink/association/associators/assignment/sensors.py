@@ -286,8 +286,8 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
     time = detections.timestamp
     swapped, lags = swapped_pairs(
         positions,
-        [time[order[start[k] : start[k + 1]]] for k in range(positions.size)],
-        [speed[order[start[k] : start[k + 1]]] for k in range(positions.size)],
+        _per_sensor(time, order, start),
+        _per_sensor(speed, order, start),
     )
     if swapped:  # the lags measured were those of the sensors as reported
         sensor = in_road_order(sensor, swapped)
@@ -300,8 +300,8 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         time = time - offsets[sensor]
     steps = clock_steps(
         positions,
-        [time[order[start[k] : start[k + 1]]] for k in range(positions.size)],
-        [speed[order[start[k] : start[k + 1]]] for k in range(positions.size)],
+        _per_sensor(time, order, start),
+        _per_sensor(speed, order, start),
         offsets,
     )
     if steps:
@@ -313,8 +313,8 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         order, start = _by_sensor_and_time(time, detections.velocity, sensor, positions.size)
     drifts = clock_drifts(
         positions,
-        [time[order[start[k] : start[k + 1]]] for k in range(positions.size)],
-        [speed[order[start[k] : start[k + 1]]] for k in range(positions.size)],
+        _per_sensor(time, order, start),
+        _per_sensor(speed, order, start),
     )
     if drifts:
         time = time.copy()
@@ -347,6 +347,12 @@ def arrange(detections: Detections, params: AssignmentParams) -> Sensors:
         tuple(steps),
         tuple(drifts),
     )
+
+
+def _per_sensor(values: FloatArray, order: IntArray, start: IntArray) -> list[FloatArray]:
+    """Each sensor's `values`, in the order `order` gives (`start`: where each sensor's run
+    begins), as the clocks' searches read them."""
+    return [values[order[start[k] : start[k + 1]]] for k in range(start.size - 1)]
 
 
 def _by_sensor_and_time(
