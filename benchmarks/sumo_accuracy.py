@@ -36,7 +36,9 @@ sensor's clock by a normal draw of 1 s (std; drawn from the seed, the same for e
 associator); any number of seconds may follow the word, and `first` or `last` after it moves
 the first or last sensor's clock instead of the middle one's (`late3600last`). `step20` has
 the middle sensor's clock jump 20 s late at the batch's middle time, `drift10` drift to 10 s
-late by its end, and `jitter0.5` moves every detection's time by its own normal draw (0.5 s
+late by its end, `saw10` drift to 10 s late by the middle time, be set right there and drift
+to 10 s late again by the end (a clock that its time server corrects now and then), and
+`jitter0.5` moves every detection's time by its own normal draw (0.5 s
 std: a gateway that stamps reports as it receives them). Field sensors that no GPS or NTP
 keeps in step drift by seconds; a time zone or daylight saving time set wrongly puts one an
 hour off.
@@ -131,7 +133,7 @@ def load_case(
     return detections
 
 
-CLOCK = re.compile(r"(late|early|spread|step|drift|jitter)(\d+(?:\.\d+)?)(first|last)?")
+CLOCK = re.compile(r"(late|early|spread|step|drift|saw|jitter)(\d+(?:\.\d+)?)(first|last)?")
 
 
 def parse_clock(clock: str) -> tuple[str, float, str | None]:
@@ -140,7 +142,8 @@ def parse_clock(clock: str) -> tuple[str, float, str | None]:
     match = CLOCK.fullmatch(clock)
     if match is None:
         raise ValueError(
-            f"expected lateS, earlyS, stepS, driftS, spreadS or jitterS (S seconds), got {clock!r}"
+            "expected lateS, earlyS, stepS, driftS, sawS, spreadS or jitterS (S seconds), "
+            f"got {clock!r}"
         )
     kind, seconds, which = match.group(1), float(match.group(2)), match.group(3)
     if kind in ("spread", "jitter") and which is not None:
@@ -153,7 +156,9 @@ def with_clock(detections: Detections, clock: str | None, seed: int) -> Detectio
     shift the middle sensor's timestamps by S seconds (`lateSfirst`, `lateSlast`: the first or
     last sensor's), `stepS` those after the batch's middle time alone (a clock that jumped S
     seconds late while it reported), `driftS` by a share of S growing from none at the batch's
-    first time to all of it at its last (a clock running fast), `spreadS` every sensor's by a
+    first time to all of it at its last (a clock running fast), `sawS` by such a share growing
+    to S by the batch's middle time and again from none to S by its end (a fast clock set right
+    at the middle), `spreadS` every sensor's by a
     normal draw of S seconds (std) from `seed`, and `jitterS` every detection's by its own
     (a gateway stamping each report when it receives it); None leaves the case as it is."""
     if clock is None:
@@ -172,9 +177,10 @@ def with_clock(detections: Detections, clock: str | None, seed: int) -> Detectio
     shift = offsets[np.searchsorted(positions, detections.position)]
     if kind == "step":
         shift = np.where(detections.timestamp > np.median(detections.timestamp), shift, 0.0)
-    if kind == "drift":
+    if kind in ("drift", "saw"):
         first, last = detections.timestamp.min(), detections.timestamp.max()
-        shift = shift * (detections.timestamp - first) / max(last - first, 1e-9)
+        share = (detections.timestamp - first) / max(last - first, 1e-9)
+        shift = shift * (share if kind == "drift" else (2.0 * share) % 1.0)
     return dataclasses.replace(detections, timestamp=detections.timestamp + shift)
 
 
@@ -363,8 +369,9 @@ def main() -> None:
         help="Sensors' clocks off: lateS, earlyS (the middle sensor, S seconds; lateSfirst, "
         "lateSlast: the first or last), stepS (the middle sensor S seconds late from the "
         "batch's middle time on), driftS (the middle sensor's clock drifting to S seconds late "
-        "by the batch's end), spreadS (every sensor, S seconds std) or jitterS (every "
-        "detection, S seconds std).",
+        "by the batch's end), sawS (drifting to S seconds late by the batch's middle time, set "
+        "right there, and again by its end), spreadS (every sensor, S seconds std) or jitterS "
+        "(every detection, S seconds std).",
     )
     parser.add_argument(
         "--quiet",

@@ -101,6 +101,9 @@ def test_a_drifting_clock_and_a_jitter_move_times_as_named():
     drift = bench.with_clock(d, "drift9", seed=0).timestamp - d.timestamp
     # Times 0-9: the middle sensor's reports at 4 and 5 s are 4 and 5 s late.
     np.testing.assert_allclose(drift, np.where(d.position == 200, d.timestamp, 0.0))
+    saw = bench.with_clock(d, "saw9", seed=0).timestamp - d.timestamp
+    # Set right at the middle time (4.5 s): 8 s late at 4 s, 1 s late at 5 s.
+    np.testing.assert_allclose(saw, np.where(d.position == 200, (2 * d.timestamp) % 9, 0.0))
     jitter = bench.with_clock(d, "jitter0.5", seed=1).timestamp - d.timestamp
     assert np.unique(jitter).size == 10 and 0.1 < jitter.std() < 1.0
     np.testing.assert_array_equal(
