@@ -190,3 +190,29 @@ def test_every_view_of_a_result_past_the_limit_is_refused_before_it_is_read(
         assert page.status_code == 200 and 'id="too-large"' in page.text
         assert "100 detections" in page.text and 'id="plot"' not in page.text
         assert http.get(f"/v1/jobs/{job}/result").status_code == 200  # read whole, as stored
+
+
+def test_a_plot_is_drawn_with_no_database_connection_held(
+    client: TestClient,
+    worker: Worker,
+    engine: Engine,
+    deployment: dict[str, Any],
+    paper_csv: str,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Drawing waits for the one renderer, seconds under load: a plot request that held its
+    connection meanwhile let a burst of them take the whole pool (benchmarks/soak.py on a loaded
+    machine: 503s), so the connection goes back before drawing, cached result or not."""
+    job = _post_and_run(client, worker, deployment, paper_csv)
+    held: list[int] = []
+
+    def render(result: AssociationResult, kind: str, fmt: str) -> bytes:
+        held.append(engine.pool.checkedout())  # type: ignore[attr-defined]
+        return b"<svg/>"
+
+    monkeypatch.setattr(jobresults, "render_elsewhere", render)
+    for fmt in ("svg", "png"):  # the first reads the result, the second finds it cached
+        assert client.get(f"/v1/jobs/{job}/plot", params={"format": fmt}).status_code == 200
+    page = client.get(f"/jobs/{job}", params={"kind": "backprojected"})  # drawn for the page
+    assert page.status_code == 200
+    assert held == [0, 0, 0]

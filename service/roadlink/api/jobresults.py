@@ -147,6 +147,8 @@ def job_result(
     """The result of a succeeded job; 404 for an unknown job, 409 for an unfinished one, 413
     for one of more than `max_detections` detections.
 
+    The session's connection goes back to the pool before this returns.
+
     Every view of a result (plot, positions, targets, the job page) reads it here, so this is
     the one bound on what a read of a result may cost the API: rebuilding, drawing or
     localising a million detections takes minutes of CPU and gigabytes, which no request may
@@ -164,6 +166,11 @@ def job_result(
         return repository.load_job_association(session, job=job)
 
     entry = cache.get(job_id, load)
+    # What the caller does next (drawing, waiting for the one renderer, localising) takes
+    # seconds under load; holding the connection meanwhile let a burst of plot requests take
+    # every connection of the pool, and the other routes answered 503. Nothing read here is
+    # used lazily, and the session opens a new transaction if the caller reads again.
+    session.close()
     if entry is None:  # succeeded without a result cannot happen: both commit together
         raise ApiProblem(500, f"job {job_id} succeeded but its result is missing")
     return entry
