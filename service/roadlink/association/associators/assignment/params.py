@@ -189,8 +189,10 @@ class AssignmentParams(AssociatorParams):
         "makes sure of (each lane's detections at two neighbouring sensors aligned in time "
         "order: no vehicle passes another in its lane, and followers take about the same "
         "time), each as much as its chain beat the alignments that shift it, in each segment "
-        "as much as the tracks built without them contradict them. Decisive in queues; false: "
-        "speeds, times and features alone.",
+        "as much as the tracks built without them contradict them; and exchange two links "
+        "between the same lanes that cross (one vehicle passing another that keeps its lane) "
+        "where the segment's tracks say crossing is rarer than the exchange costs. Decisive in "
+        "queues; false: speeds, times and features alone.",
     )
     preferred_speed_weight: float = Field(
         default=0.35,

@@ -11,6 +11,10 @@ from roadlink.association.associators.assignment.arrays import same
 from roadlink.association.associators.assignment.costs import Level, link_cost
 from roadlink.association.associators.assignment.edges import WindowEdges
 from roadlink.association.associators.assignment.gating import EverySensor, Gate, Pairs
+from roadlink.association.associators.assignment.lane_inversions import (
+    in_lane_order,
+    keeps_lane_order,
+)
 from roadlink.association.associators.assignment.matching import (
     chosen_marginals,
     match,
@@ -73,8 +77,9 @@ def refine_boundaries(
         edges = WindowEdges.of(s, model, gate.gate / 2.0)
     else:
         gate, edges = ready
+    lane_order = keeps_lane_order(s, params)
     if gate.every is not None:
-        unchanged = Unchanged(s, model, params, gate.every, gate.gate, edges, anchor)
+        unchanged = Unchanged(s, model, params, gate.every, gate.gate, edges, anchor, lane_order)
         kept = unchanged.sweep(track, (nxt, prv), relink)
         if kept is not None:
             if confidence is not None:
@@ -103,6 +108,10 @@ def refine_boundaries(
             # Splitting a track costs more here than declining a link did: a track the forward
             # pass built is evidence in itself, so re-pairing must pay for itself.
             linked_a, linked_b = match(pairs.a, pairs.b, cost, gate.gate)
+            if lane_order:
+                linked = (linked_a, linked_b)
+                apart = params.duplicate_window
+                linked_a, linked_b = in_lane_order(s, nxt, k, linked, pairs, cost, apart)
             crossing = tails[nxt[tails] >= 0]
             was = nxt[tails]
             prv[nxt[crossing]] = -1
@@ -153,6 +162,7 @@ class Unchanged:
     gate: float
     edges: WindowEdges
     anchor: Anchors | None
+    lane_order: bool  # whether the boundaries keep lane order (`lane_inversions`)
 
     def sweep(
         self, track: IntArray, links: tuple[IntArray, IntArray], relink: bool
@@ -188,8 +198,22 @@ class Unchanged:
                 relink and np.count_nonzero(kept[lo:hi] & (cost[lo:hi] < self.gate)) != crossing[i]
             ):
                 return None  # a crossing link the matching cannot take (no candidate, or gated)
+            if relink and self.reorders(i + 1, nxt, here, cost[lo:hi], kept[lo:hi]):
+                return None
             judged.append((here, cost[lo:hi], kept[lo:hi]))
         return judged
+
+    def reorders(
+        self, k: int, nxt: IntArray, here: Pairs, cost: FloatArray, kept: BoolArray
+    ) -> bool:
+        """Whether lane order (`_in_lane_order`) would exchange links that boundary k's
+        matching keeps."""
+        s = self.s
+        if not self.lane_order:
+            return False
+        a, b = here.a[kept], here.b[kept]
+        apart = self.params.duplicate_window
+        return not same(in_lane_order(s, nxt, k, (a, b), here, cost, apart)[1], b)
 
     def ends(
         self, links: tuple[IntArray, IntArray], in_track: BoolArray
