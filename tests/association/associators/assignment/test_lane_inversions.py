@@ -27,8 +27,9 @@ CASES = Path(__file__).parents[3] / "data" / "sumo-features"
 
 
 def boundary(lanes_up: list[int], lanes_down: list[int], gap: float = 10.0) -> Sensors:
-    """Two sensors 100 m apart; vehicle i passes the first at 10 i s (lane lanes_up[i]) and the
-    second at 10 i + 30 s (lane lanes_down[i]): detections 0..n-1 upstream, n..2n-1 downstream."""
+    """Two sensors 100 m apart; vehicle i passes the first at gap x i s (in lane lanes_up[i])
+    and the second 30 s later (in lane lanes_down[i]): detections 0..n-1 upstream, n..2n-1
+    downstream."""
     n = len(lanes_up)
     times = np.arange(n) * gap
     d = Detections.from_columns(
