@@ -113,9 +113,9 @@ class _Costed:
     def __init__(self, pairs: Pairs, cost: FloatArray, n: int) -> None:
         self._n = n
         keys = pairs.a * n + pairs.b
-        self._order = np.argsort(keys)
-        self._keys = keys[self._order]
-        self._cost = cost[self._order]
+        order = np.argsort(keys)
+        self._keys = keys[order]
+        self._cost = cost[order]
 
     def __call__(self, a: IntArray, b: IntArray) -> FloatArray:
         keys = a * self._n + b
@@ -152,6 +152,6 @@ def _by_lanes(s: Sensors, a: IntArray, b: IntArray) -> tuple[IntArray, IntArray]
     assert s.features is not None
     lane = s.features.lane
     reported = np.flatnonzero((lane[a] != NO_LANE) & (lane[b] != NO_LANE))
-    group = lane[a[reported]] * (int(lane.max()) + 1) + lane[b[reported]]
+    group = lane[a[reported]] * s.features.n_lanes + lane[b[reported]]
     by = np.lexsort((s.time[a[reported]], group))
     return reported[by], group[by]

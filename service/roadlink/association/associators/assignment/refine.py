@@ -206,14 +206,13 @@ class Unchanged:
     def reorders(
         self, k: int, nxt: IntArray, here: Pairs, cost: FloatArray, kept: BoolArray
     ) -> bool:
-        """Whether lane order (`_in_lane_order`) would exchange links that boundary k's
+        """Whether lane order (`in_lane_order`) would exchange links that boundary k's
         matching keeps."""
-        s = self.s
         if not self.lane_order:
             return False
         a, b = here.a[kept], here.b[kept]
         apart = self.params.duplicate_window
-        return not same(in_lane_order(s, nxt, k, (a, b), here, cost, apart)[1], b)
+        return not same(in_lane_order(self.s, nxt, k, (a, b), here, cost, apart)[1], b)
 
     def ends(
         self, links: tuple[IntArray, IntArray], in_track: BoolArray
